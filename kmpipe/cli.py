@@ -1,0 +1,286 @@
+"""The ``kmpipe`` command line: one subcommand per pipeline stage.
+
+Exit status: 0 success, 1 a check failed, 2 bad input (a one-paragraph message, no traceback unless
+``--debug``), 70 an internal error (a bug: please report it with the ``--debug`` traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from kmpipe import __version__
+from kmpipe.errors import InputError
+from kmpipe.flags import Flag
+from kmpipe.manifest import METHODS, parse_grid
+
+EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 70
+
+#: Wavelengths (nm) shown in the summary table of ``kmpipe fit``.
+SUMMARY_WAVELENGTHS = (450.0, 550.0, 650.0)
+
+
+def _saunderson_arg(text: str) -> tuple[float, float]:
+    try:
+        k1, k2 = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected K1,K2 such as 0.04,0.6, got {text!r}") from None
+    if not (0.0 <= k1 < 1.0 and 0.0 <= k2 < 1.0):
+        raise argparse.ArgumentTypeError(f"Saunderson constants must lie in [0, 1), got {text!r}")
+    return k1, k2
+
+
+def _grid_arg(text: str) -> str:
+    try:
+        parse_grid(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
+
+
+def _refuse_overwriting_inputs(output: Path, inputs) -> None:
+    resolved = output.resolve()
+    for path in inputs:
+        if Path(path).resolve() == resolved:
+            raise InputError(
+                "is one of the inputs; kmpipe never overwrites its inputs", path=output, field="-o"
+            )
+
+
+def _summary_table(materials: list[tuple[Path, object]]) -> Table:
+    from kmpipe.material import Material
+
+    first: Material = materials[0][1]
+    spectral = first.wavelengths is not None
+    table = Table(title="Fitted materials", title_justify="left")
+    table.add_column("sample")
+    table.add_column("method")
+    labels = SUMMARY_WAVELENGTHS if spectral else tuple(first.channels)
+    for label in labels:
+        table.add_column(f"K/S {label:.0f}" if spectral else f"K/S {label}", justify="right")
+    table.add_column("S 550 (1/mm)" if spectral else f"S {labels[1]} (1/mm)", justify="right")
+    table.add_column("worst RMSE", justify="right")
+    table.add_column("flags")
+    for _, material in materials:
+        ks = material.ks_ratio
+        cells = []
+        for label in labels:
+            if spectral:
+                i = int(np.argmin(np.abs(material.wavelengths - label)))
+            else:
+                i = material.channels.index(label)
+            cells.append(f"{ks[i]:.3g}")
+        j = int(np.argmin(np.abs(material.wavelengths - 550.0))) if spectral else 1
+        worst = max(m.rmse for m in material.measurements)
+        counts = [
+            f"{f.name.lower()} x{int(np.count_nonzero(material.flags & f))}"
+            for f in Flag
+            if np.any(material.flags & f)
+        ]
+        table.add_row(
+            material.name,
+            material.method,
+            *cells,
+            f"{material.S[j]:.3g}",
+            f"{worst:.1e}",
+            ", ".join(counts) or "none",
+        )
+    return table
+
+
+def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.fitting import fit_sample, provenance
+    from kmpipe.material import write_material
+    from kmpipe.sample import load_sample
+
+    to_folder = len(args.manifest) > 1 or args.output.is_dir()
+    if to_folder and args.output.exists() and not args.output.is_dir():
+        raise InputError(
+            "is a file; with several manifests, -o must name a folder "
+            "(one SAMPLE.json is written there per sample)",
+            path=args.output,
+            field="-o",
+        )
+    written = []
+    for manifest in args.manifest:
+        sample = load_sample(manifest, grid=args.grid)
+        output = args.output / f"{sample.name}.json" if to_folder else args.output
+        _refuse_overwriting_inputs(output, sample.inputs)
+        material = fit_sample(
+            sample,
+            method=args.method,
+            saunderson=args.saunderson,
+            smoothness=args.smoothness,
+            noise=args.noise,
+        )
+        material = dataclasses.replace(material, provenance=provenance(sample, output))
+        write_material(material, output)
+        written.append((output, material))
+    console.print(_summary_table(written))
+    for path, material in written:
+        console.print(
+            f"wrote {path}  ({material.name}: {material.method}, {len(material.labels)} "
+            f"{'wavelengths' if material.wavelengths is not None else 'channels'})",
+            highlight=False,
+        )
+    return EXIT_OK
+
+
+def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid, write_spectra_csv
+    from kmpipe.white import certified_reflectance, radiance_to_reflectance
+
+    def column_ref(text: str, option: str) -> tuple[Path, str]:
+        file, sep, column = text.rpartition(":")
+        if not sep or not file or not column:
+            raise InputError(f"expected FILE:COLUMN, got {text!r}", field=option)
+        return Path(file), column
+
+    table = read_spectra_csv(args.radiance)
+    if table.quantity != "radiance":
+        raise InputError(
+            f"holds {table.quantity}; kmpipe ingest converts radiance", path=args.radiance, field="quantity"
+        )
+    if table.wavelengths is None:
+        raise InputError("holds camera channels; kmpipe ingest works on spectra", path=args.radiance)
+    grid = uniform_grid(*parse_grid(args.grid)) if args.grid else table.wavelengths
+    if args.grid:
+        table = resample(table, grid)
+
+    def reference(text: str, option: str):
+        path, column = column_ref(text, option)
+        ref_table = read_spectra_csv(path)
+        if ref_table.quantity != "radiance":
+            raise InputError(f"holds {ref_table.quantity}, expected radiance", path=path, field=option)
+        if ref_table.wavelengths is None or not np.array_equal(ref_table.wavelengths, grid):
+            ref_table = resample(ref_table, grid)
+        return ref_table.column(column)
+
+    white = reference(args.white, "--white")
+    dark = reference(args.dark, "--dark") if args.dark else None
+    certified = certified_reflectance(args.certified, grid, base_dir=Path.cwd())
+    _refuse_overwriting_inputs(args.output, [args.radiance, column_ref(args.white, "--white")[0]])
+    values = np.array(
+        [
+            radiance_to_reflectance(
+                table.column(c), white, certified, dark=dark, source=f"{args.radiance}:{c}"
+            )
+            for c in table.columns
+        ]
+    )
+    metadata = dict(table.metadata)
+    metadata.update(
+        quantity="reflectance",
+        units="1",
+        white_reference=f"{args.white} x {args.certified}",
+    )
+    if args.dark:
+        metadata["dark_reading"] = args.dark
+    out = SpectralTable(
+        wavelengths=grid, channels=None, columns=table.columns, values=values, metadata=metadata
+    )
+    write_spectra_csv(out, args.output)
+    console.print(
+        f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}"
+    )
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="kmpipe",
+        description="Measurements of cosmetic films to Kubelka-Munk materials and render assets.",
+        epilog="Exit status: 0 success, 1 a check failed, 2 bad input, 70 internal error.",
+    )
+    parser.add_argument("--version", action="version", version=f"kmpipe {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    fit = commands.add_parser(
+        "fit",
+        help="fit Kubelka-Munk K and S of a sample from its measurements",
+        description="Fit K and S (per mm) of one sample, or of several (one output each), from a sample "
+        "manifest (TOML; see docs/formats.md) and write MATERIAL.json.",
+    )
+    fit.add_argument("manifest", nargs="+", type=Path, help="sample manifest(s), TOML")
+    fit.add_argument(
+        "-o", "--output", type=Path, required=True, help="MATERIAL.json, or a folder for several samples"
+    )
+    fit.add_argument("--method", choices=METHODS, help="inversion method (default: the manifest's, else lsq)")
+    fit.add_argument(
+        "--saunderson", type=_saunderson_arg, metavar="K1,K2", help="model surface reflection, e.g. 0.04,0.6"
+    )
+    fit.add_argument(
+        "--grid", type=_grid_arg, metavar="START:STOP:STEP", help="fit on this grid in nm, e.g. 400:700:10"
+    )
+    fit.add_argument(
+        "--smoothness", type=float, help="lsq: second-difference penalty across wavelength (e.g. 1e-6)"
+    )
+    fit.add_argument(
+        "--noise", type=float, help="noise standard deviation of the readings, for standard errors"
+    )
+    fit.set_defaults(run=_cmd_fit)
+
+    ingest = commands.add_parser(
+        "ingest",
+        help="turn radiance spectra into reflectance with a white standard",
+        description="R = (L - L_dark) / (L_white - L_dark) x certified reflectance of the white standard.",
+    )
+    ingest.add_argument("radiance", type=Path, help="spectral CSV holding radiance")
+    ingest.add_argument(
+        "--white", required=True, metavar="FILE:COLUMN", help="radiance of the white standard"
+    )
+    ingest.add_argument(
+        "--certified",
+        default="builtin:baso4",
+        metavar="SPEC",
+        help="builtin:baso4 (default) or FILE[:COLUMN]",
+    )
+    ingest.add_argument("--dark", metavar="FILE:COLUMN", help="dark reading to subtract")
+    ingest.add_argument(
+        "--grid", type=_grid_arg, metavar="START:STOP:STEP", help="resample onto this grid (nm)"
+    )
+    ingest.add_argument("-o", "--output", type=Path, required=True, help="reflectance CSV to write")
+    ingest.set_defaults(run=_cmd_ingest)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    console = Console()
+    errors = Console(stderr=True)
+    try:
+        return args.run(args, console)
+    except InputError as err:
+        if args.debug:
+            raise
+        errors.print(
+            f"[bold red]kmpipe {args.command}: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True
+        )
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        errors.print(
+            "kmpipe: interrupted; files already written are complete, nothing half-written was left."
+        )
+        return 130
+    except Exception as err:  # a bug, not bad input
+        if args.debug:
+            raise
+        errors.print(
+            f"[bold red]kmpipe {args.command}: internal error:[/] {type(err).__name__}: {escape(str(err))}\n"
+            "This is a bug in kmpipe. Run again with --debug for the traceback and report it.",
+            highlight=False,
+        )
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

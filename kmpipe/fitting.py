@@ -1,0 +1,208 @@
+"""Fit one sample: a closed-form inversion, or a joint least-squares fit started from one.
+
+Methods (``kmpipe fit --method``):
+
+- ``two-constant``: masstone R_inf and each film over its backing, thesis eq. 4.1 in real form
+  (:func:`kmpipe.inversion.two_constant`); estimates from several films are averaged.
+- ``black-white``: films of one thickness over two backings (:func:`kmpipe.inversion.black_white`);
+  estimates from several thicknesses are averaged.
+- ``lsq``: every measurement at once (:func:`kmpipe.joint_fit.fit_joint`), started from black-white
+  when the sample has such pairs and from two-constant otherwise.
+
+Averaging uses only unflagged estimates; where every estimate is flagged, the largest S (the tightest
+lower bound for an opaque film) is kept with the union of the flags.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from pathlib import Path
+
+import numpy as np
+
+from kmpipe import __version__
+from kmpipe.errors import InputError
+from kmpipe.flags import Flag
+from kmpipe.inversion import Inversion, black_white, two_constant
+from kmpipe.joint_fit import fit_joint, predict_readings, standard_errors
+from kmpipe.material import Material, MeasurementFit
+from kmpipe.sample import Sample, file_sha256
+from kmpipe.saunderson import saunderson_inverse
+
+
+def _combine(inversions: list[Inversion]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Average unflagged K and S over several estimates; keep the largest-S flagged one elsewhere."""
+    K = np.array([i.K for i in inversions])
+    S = np.array([i.S for i in inversions])
+    flags = np.array([i.flags for i in inversions])
+    good = flags == 0
+    count = good.sum(axis=0)
+    any_good = count > 0
+    mean_K = np.where(good, K, 0.0).sum(axis=0) / np.maximum(count, 1)
+    mean_S = np.where(good, S, 0.0).sum(axis=0) / np.maximum(count, 1)
+    pick = np.argmax(S, axis=0)
+    columns = np.arange(K.shape[1])
+    union = np.bitwise_or.reduce(flags, axis=0)
+    return (
+        np.where(any_good, mean_K, K[pick, columns]),
+        np.where(any_good, mean_S, S[pick, columns]),
+        np.where(any_good, 0, union).astype(np.uint8),
+    )
+
+
+def _km_reflectance(sample: Sample, saunderson) -> tuple[np.ndarray, np.ndarray]:
+    """Readings and backgrounds as KM body reflectance (surface reflection removed when Saunderson is on)."""
+    readings = sample.readings
+    backgrounds = np.array([sample.background_of(m) for m in sample.measurements])
+    if saunderson is None:
+        return readings, backgrounds
+    return saunderson_inverse(readings, *saunderson), saunderson_inverse(backgrounds, *saunderson)
+
+
+def _two_constant(sample: Sample, y, G, tolerance) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    roles = [m.role for m in sample.measurements]
+    masstones = [i for i, r in enumerate(roles) if r == "masstone"]
+    films = [i for i, r in enumerate(roles) if r == "film"]
+    if not masstones:
+        raise InputError(
+            "the two-constant method needs a [[masstone]] (an opaque layer of the sample); "
+            "use --method black-white or lsq for films over two backings",
+            path=sample.manifest_path,
+            field="masstone",
+        )
+    R_inf = y[masstones].mean(axis=0)
+    X = sample.thickness_mm
+    return _combine([two_constant(R_inf, y[i], G[i], X[i], tolerance=tolerance) for i in films])
+
+
+def _black_white_pairs(sample: Sample) -> list[tuple[int, int]]:
+    """(film over the darker backing, film over the lighter backing) for every thickness that has both."""
+    by_thickness: dict[float, list[int]] = {}
+    for i, m in enumerate(sample.measurements):
+        if m.role == "film":
+            by_thickness.setdefault(m.thickness_mm, []).append(i)
+    pairs = []
+    for indices in by_thickness.values():
+        overs = {sample.measurements[i].over for i in indices}
+        if len(overs) < 2:
+            continue
+        brightness = {i: float(np.mean(sample.backings[sample.measurements[i].over])) for i in indices}
+        dark = min(indices, key=brightness.get)
+        light = max(indices, key=brightness.get)
+        pairs.append((dark, light))
+    return pairs
+
+
+def _black_white(sample: Sample, y, G, tolerance) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    pairs = _black_white_pairs(sample)
+    if not pairs:
+        raise InputError(
+            "the black-white method needs films of the same thickness over two different backings",
+            path=sample.manifest_path,
+            field="film",
+        )
+    X = sample.thickness_mm
+    return _combine([black_white(y[b], y[w], G[b], G[w], X[b], tolerance=tolerance) for b, w in pairs])
+
+
+def fit_sample(
+    sample: Sample,
+    *,
+    method: str | None = None,
+    saunderson: tuple[float, float] | None = None,
+    smoothness: float | None = None,
+    noise: float | None = None,
+) -> Material:
+    """Fit K and S (per mm) of one sample; arguments left None come from the manifest's ``[fit]`` table."""
+    settings = sample.settings
+    method = method or settings.method
+    saunderson = saunderson if saunderson is not None else settings.saunderson
+    smoothness = settings.smoothness if smoothness is None else smoothness
+    noise = settings.noise if noise is None else noise
+    tolerance = settings.opaque_tolerance
+    y_km, G_km = _km_reflectance(sample, saunderson)
+    thickness = sample.thickness_mm
+    fit_info: dict = {"opaque_tolerance": tolerance}
+
+    if method == "two-constant":
+        K, S, flags = _two_constant(sample, y_km, G_km, tolerance)
+    elif method == "black-white":
+        K, S, flags = _black_white(sample, y_km, G_km, tolerance)
+    elif method == "lsq":
+        start = "black-white" if _black_white_pairs(sample) else "two-constant"
+        start_fn = _black_white if start == "black-white" else _two_constant
+        K0, S0, start_flags = start_fn(sample, y_km, G_km, tolerance)
+        result = fit_joint(
+            sample.readings,
+            G_km,
+            thickness,
+            K0,
+            S0,
+            sigma=noise,
+            saunderson=saunderson,
+            smoothness=smoothness,
+        )
+        K, S = result.K, result.S
+        flags = result.flags | (start_flags & np.uint8(Flag.OPAQUE))
+        fit_info.update(
+            start=start,
+            library="nlopt",
+            algorithm=result.algorithm,
+            evaluations=result.evaluations,
+            status=result.status,
+            smoothness=smoothness,
+        )
+    else:
+        raise InputError(
+            f"unknown method {method!r}; expected one of two-constant, black-white, lsq", field="--method"
+        )
+
+    predicted = predict_readings(K, S, thickness, G_km, saunderson)
+    residuals = predicted - sample.readings
+    K_se, S_se, sigma = standard_errors(K, S, thickness, G_km, sample.readings, saunderson, noise)
+    fit_info.update(
+        noise_sigma=sigma,
+        noise_source="given"
+        if noise is not None
+        else ("residuals" if sigma is not None else "none (exactly determined)"),
+    )
+    measurements = tuple(
+        MeasurementFit(id=m.id, role=m.role, over=m.over, thickness_mm=m.thickness_mm, residuals=residuals[i])
+        for i, m in enumerate(sample.measurements)
+    )
+    return Material(
+        name=sample.name,
+        product=sample.product,
+        kind=sample.kind,
+        wavelengths=sample.wavelengths,
+        channels=sample.channels,
+        K=K,
+        S=S,
+        K_stderr=K_se,
+        S_stderr=S_se,
+        flags=np.asarray(flags, dtype=np.uint8),
+        method=method,
+        saunderson=saunderson,
+        fit=fit_info,
+        measurements=measurements,
+        provenance={},
+    )
+
+
+def provenance(sample: Sample, output: Path) -> dict:
+    """Where a material came from: the kmpipe version, the time, and every input with its SHA-256.
+
+    Paths are relative to the output file's folder, so a material and its measurements can move together.
+    """
+    base = output.resolve().parent
+
+    def rel(path: Path) -> str:
+        return os.path.relpath(path.resolve(), base)
+
+    return {
+        "kmpipe_version": __version__,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "manifest": rel(sample.manifest_path),
+        "inputs": [{"path": rel(p), "sha256": file_sha256(p)} for p in sample.inputs],
+    }

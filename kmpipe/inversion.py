@@ -1,0 +1,335 @@
+"""Closed-form Kubelka-Munk inversions: K and S from reflectances, per wavelength or camera channel.
+
+All functions take KM (body) reflectances; remove surface reflection first with
+:func:`kmpipe.saunderson.saunderson_inverse` if the readings include it. Arrays broadcast, wavelength
+(or channel) last. Nothing returned is NaN or infinite: where the readings cannot determine K and S,
+the element carries a :class:`~kmpipe.flags.Flag` saying what the finite value means instead.
+
+Notation: a = 1 + K/S, b = sqrt(a^2 - 1), R_inf = a - b, X thickness (mm), K and S per mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from kmpipe.flags import Flag
+from kmpipe.kubelka_munk import ks_from_reflectance_infinite
+
+#: Readings that agree to this relative tolerance (film over black vs over white, or film vs masstone)
+#: are treated as opaque: thickness is not identifiable there.
+OPAQUE_TOLERANCE = 1e-3
+
+#: Smallest masstone reflectance used when a reading is 0 or negative (K/S would be infinite).
+_MIN_REFLECTANCE = 1e-9
+#: ... and the K/S that goes with it (K/S of a perfect absorber is infinite).
+#: Elements per block in :func:`black_white` (fits the working set in a 2 MB cache).
+_BLOCK = 16384
+_MAX_KS = float((1.0 - _MIN_REFLECTANCE) ** 2 / (2.0 * _MIN_REFLECTANCE))
+
+
+@dataclass(frozen=True)
+class Inversion:
+    """K and S per unit length (1/mm when X is in mm), K/S, and a Flag bitmask, all of one shape."""
+
+    K: np.ndarray
+    S: np.ndarray
+    ks_ratio: np.ndarray
+    flags: np.ndarray
+
+
+def _check_thickness(X) -> np.ndarray:
+    X = np.asarray(X, dtype=np.float64)
+    if np.any(~np.isfinite(X)) or np.any(X <= 0.0):
+        raise ValueError("film thickness X must be finite and > 0 for an inversion")
+    return X
+
+
+def _artanhc(w: np.ndarray) -> np.ndarray:
+    """artanh(w) / w for 0 <= w < 1: series 1 + w^2/3 + w^4/5 + w^6/7 near 0, log form elsewhere."""
+    w2 = w * w
+    series = 1.0 + w2 * (1.0 / 3.0 + w2 * (1.0 / 5.0 + w2 * (1.0 / 7.0)))
+    safe = np.where(w < 1e-3, 0.5, w)
+    return np.where(w < 1e-3, series, np.arctanh(safe) / safe)
+
+
+def _log1pc(d: np.ndarray) -> np.ndarray:
+    """log1p(d) / d for d >= 0: series 1 - d/2 + d^2/3 - d^3/4 near 0."""
+    series = 1.0 + d * (-0.5 + d * (1.0 / 3.0 - d * 0.25))
+    safe = np.where(d < 1e-4, 1.0, d)
+    return np.where(d < 1e-4, series, np.log1p(safe) / safe)
+
+
+def _opaque_lower_bound_sx(ks, R_g_dark, R_g_light, tolerance: float) -> np.ndarray:
+    """Smallest S X at which a film of this K/S over the two backgrounds reaches contrast 1 - tolerance.
+
+    Over a background G a film reads R = (1 - G (a - v)) / (a - G + v) with v = b coth(b S X), which
+    falls from +inf (X = 0) to b (opaque). Contrast R_dark / R_light = rho = 1 - tolerance is the
+    quadratic A2 v^2 + A1 v + A0 = 0 with A2 = G_d - rho G_l, A1 = (1 - G_d G_l)(1 - rho) and
+    A0 = A0' - a^2 A2, A0' = a (1 - rho)(1 + G_d G_l) - G_l + rho G_d, whose positive root is v. Then
+    1 - b/v = (v^2 - b^2) / (v (v + b)) with v^2 - b^2 = -(A1 v + A0' - A2) / A2 (no cancellation of
+    the a^2 terms), and S X = artanh(b/v) / b = artanh(w) / (w v), w = b / v. Backgrounds that already
+    meet the contrast (G_d >= rho G_l) give 0.
+    """
+    rho = 1.0 - tolerance
+    a = 1.0 + ks
+    b = np.sqrt(ks * (ks + 2.0))
+    A2 = R_g_dark - rho * R_g_light
+    A1 = (1.0 - R_g_dark * R_g_light) * (1.0 - rho)
+    A0_reduced = a * (1.0 - rho) * (1.0 + R_g_dark * R_g_light) - R_g_light + rho * R_g_dark
+    hides = A2 < 0.0
+    A2 = np.where(hides, A2, -1.0)
+    disc = A1 * A1 - 4.0 * A2 * (A0_reduced - a * a * A2)
+    v = (A1 + np.sqrt(np.maximum(disc, 0.0))) / (-2.0 * A2)
+    gap = np.maximum(-(A1 * v + A0_reduced - A2) / A2, 0.0) / (v * (v + b))  # 1 - b/v
+    gap = np.maximum(gap, np.finfo(float).tiny)
+    w = 1.0 - gap
+    small = w < 1e-3
+    safe_w = np.where(small, 1.0, w)
+    artanh_over_w = np.where(small, 1.0 + w * w / 3.0, 0.5 * np.log((2.0 - gap) / gap) / safe_w)
+    return np.where(hides, artanh_over_w / v, 0.0)
+
+
+def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
+    """Run an inversion in cache-sized blocks: a lean regular path, then a careful one where it must.
+
+    ``regular(*arrays, tolerance)`` returns K, S, K/S and a mask of the elements it cannot do (flagged,
+    limiting or out-of-range ones); ``careful(*arrays, tolerance)`` returns K, S, K/S and flags for those.
+    """
+    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
+    shape = arrays[0].shape
+    flat = [a.ravel() for a in arrays]
+    size = flat[0].size
+    K, S, ks = np.empty(size), np.empty(size), np.empty(size)
+    flags = np.zeros(size, dtype=np.uint8)
+    for lo in range(0, size, _BLOCK):
+        block = slice(lo, lo + _BLOCK)
+        parts = [a[block] for a in flat]
+        K_b, S_b, ks_b, irregular = regular(*parts, tolerance)
+        if irregular.any():
+            K_b[irregular], S_b[irregular], ks_b[irregular], flags[block][irregular] = careful(
+                *(a[irregular] for a in parts), tolerance
+            )
+        K[block], S[block], ks[block] = K_b, S_b, ks_b
+    return Inversion(
+        K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape)
+    )
+
+
+def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
+    """K and S from a masstone R_inf and a film of thickness X over a background R_g that reads R.
+
+    Thesis eq. 4.1, S X = [arcoth((a - R)/b) - arcoth((a - R_g)/b)] / b, turns complex when the film is
+    brighter than its masstone over a light background (R > R_inf). The real-valued equivalent used here
+    (``shared/method/notes.md``) is
+
+        S X = ln[(1/R_inf - R)(R_inf - R_g) / ((R_inf - R)(1/R_inf - R_g))] / (1/R_inf - R_inf)
+            = (R - R_g) / ((R_inf - R)(1/R_inf - R_g)) * log1p(delta) / delta,
+        delta = (1/R_inf - R_inf)(R - R_g) / ((R_inf - R)(1/R_inf - R_g)),
+
+    which stays exact as R_inf -> 1 (K -> 0, where S X -> (R - R_g) / ((1 - R)(1 - R_g))).
+    K = S (a - 1) with a - 1 = K/S = (1 - R_inf)^2 / (2 R_inf) (thesis eq. 4.2).
+
+    Flags: OPAQUE where |R - R_inf| <= tolerance R_inf (S is then the lower bound at which the film reads
+    within tolerance of its masstone); NO_CONTRAST where |R_inf - R_g| <= tolerance R_inf (K = S = 0, K/S
+    exact); OUT_OF_RANGE where R is not between R_g and R_inf, or R_inf is outside (0, 1].
+    """
+    X = _check_thickness(X)
+    return _blockwise(_two_constant_regular, _two_constant_careful, (R_inf, R, R_g, X), tolerance)
+
+
+def _two_constant_regular(R_inf, R, R_g, X, tolerance):
+    """The common case of :func:`two_constant`: S X = log1p(delta) / (1/R_inf - R_inf).
+
+    Elements that are flagged, out of range, or have delta < 1e-4 (where log1p(delta)/delta needs its
+    series) are marked irregular and redone by :func:`_two_constant_careful`.
+    """
+    with np.errstate(all="ignore"):
+        two_b = 1.0 - R_inf
+        ks = two_b * two_b
+        ks /= 2.0 * R_inf
+        two_b *= 1.0 + R_inf
+        two_b /= R_inf
+        delta = R - R_g
+        denominator = R_inf - R
+        denominator *= 1.0 / R_inf - R_g
+        delta /= denominator
+        delta *= two_b
+        irregular = ~(delta >= 1e-4) | ~(R_inf >= _MIN_REFLECTANCE) | ~(R_inf <= 1.0)
+        limit = tolerance * R_inf
+        irregular |= np.abs(R_inf - R_g) <= limit
+        irregular |= np.abs(R_inf - R) <= limit
+        S = np.log1p(delta)
+        S /= two_b
+        S /= X
+        K = S * ks
+    return K, S, ks, irregular
+
+
+def _two_constant_careful(R_inf, R, R_g, X, tolerance):
+    """Every case of :func:`two_constant`, element by element in vector form: limits, flags and bounds."""
+    flags = np.zeros(R_inf.shape, dtype=np.uint8)
+    bad_masstone = (R_inf < _MIN_REFLECTANCE) | (R_inf > 1.0)
+    flags[bad_masstone] |= np.uint8(Flag.OUT_OF_RANGE)
+    Ri = np.clip(R_inf, _MIN_REFLECTANCE, 1.0)
+    ks = ks_from_reflectance_infinite(Ri)
+    two_b = (1.0 - Ri) * (1.0 + Ri) / Ri
+
+    no_contrast = np.abs(Ri - R_g) <= tolerance * Ri
+    toward = np.sign(Ri - R_g)  # +1: the film brightens the background as it thickens
+    progress = toward * (R - R_g)  # >= 0 when R lies on the masstone's side of R_g
+    remaining = toward * (Ri - R)  # > 0 while the film is not yet opaque
+    opaque = ~no_contrast & (np.abs(Ri - R) <= tolerance * Ri)
+    beyond = ~no_contrast & ~opaque & (remaining < 0.0)  # past the masstone: brighter/darker than possible
+    backwards = ~no_contrast & ~opaque & ~beyond & (progress < 0.0)  # moved away from the masstone
+    # Readings past the masstone are treated like opaque ones (lower bound); behind the background: S = 0.
+    at_limit = opaque | beyond
+    R_eff = np.where(at_limit, Ri - toward * tolerance * Ri, R)
+    R_eff = np.where(backwards | no_contrast, R_g, R_eff)
+    numerator = R_eff - R_g
+    denominator = np.where(no_contrast, 1.0, (Ri - R_eff) * (1.0 / Ri - R_g))
+    ratio = np.where(no_contrast, 0.0, numerator / denominator)
+    delta = np.maximum(two_b * ratio, 0.0)
+    SX = np.maximum(ratio, 0.0) * _log1pc(delta)
+
+    flags[opaque] |= np.uint8(Flag.OPAQUE)
+    flags[no_contrast] |= np.uint8(Flag.NO_CONTRAST)
+    flags[beyond | backwards] |= np.uint8(Flag.OUT_OF_RANGE)
+    S = SX / X
+    return S * ks, S, ks, flags
+
+
+def black_white(
+    R_over_black, R_over_white, R_black, R_white, X, *, tolerance: float = OPAQUE_TOLERANCE
+) -> Inversion:
+    """K and S from one film thickness X drawn over two backings of measured reflectance.
+
+    With y = b coth(b S X), a film over background R_g,i that reads R_i satisfies
+    (R_i + R_g,i) a + (R_i - R_g,i) y = 1 + R_i R_g,i (``shared/method/notes.md``), linear in (a, y).
+    Substituting a = 1 + u (u = K/S) gives (R_i + R_g,i) u + (R_i - R_g,i) y = (1 - R_i)(1 - R_g,i),
+    which Cramer's rule solves as u = N_u / D, y = N_y / D with
+
+        D   = (R_w + G_w)(R_b - G_b) - (R_b + G_b)(R_w - G_w)
+        N_u = (1 - R_w)(1 - G_w)(R_b - G_b) - (1 - R_b)(1 - G_b)(R_w - G_w)
+        N_y = (R_w + G_w)(1 - R_b)(1 - G_b) - (R_b + G_b)(1 - R_w)(1 - G_w)
+
+    (R_b, R_w the film over the black and white backings G_b, G_w). Then, with w = b / y
+    = sqrt(N_u (N_u + 2 D)) / N_y,
+
+        S X = artanh(w) / b = (D / N_y) artanh(w) / w,     K X = (N_u / N_y) artanh(w) / w,
+
+    which never divides by b or D: K -> 0 and a pure absorber (R_b = G_b = 0, where K X -> artanh(w))
+    are ordinary values. Curtis et al. 1997 (thesis eq. 4.5, which is an arcoth, not an arcosh) is the
+    special case G_b = 0, G_w = 1, X = 1.
+
+    Flags: OPAQUE where 1 - R_b / R_w <= tolerance (K/S exact from the system; S the lower bound at which
+    the film reaches that contrast on these backings); OUT_OF_RANGE where no non-negative K, S reproduces
+    the readings (K/S then from the mean of the two readings taken as the masstone, S as for OPAQUE; or
+    K = 0 where only the absorption came out negative).
+    """
+    X = _check_thickness(X)
+    return _blockwise(
+        _black_white_regular,
+        _black_white_careful,
+        (R_over_black, R_over_white, R_black, R_white, X),
+        tolerance,
+    )
+
+
+def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance):
+    """The common case of :func:`black_white`, with few temporaries; also says which elements it cannot do.
+
+    Returns K, S, K/S and a mask of the elements that are opaque, out of range, or so close to K = 0
+    that artanh(w)/w needs its series: those are redone by :func:`_black_white_careful`.
+    """
+    # Values at irregular elements may be inf or nan here: the careful path replaces every one of them.
+    with np.errstate(all="ignore"):
+        s_w = Rw + Gw
+        d_b = Rb - Gb
+        s_b = Rb + Gb
+        d_w = Rw - Gw
+        c_b = (1.0 - Rb) * (1.0 - Gb)
+        c_w = (1.0 - Rw) * (1.0 - Gw)
+        D = s_w * d_b
+        D -= s_b * d_w
+        # A clear absorber (S = 0) has D = 0 exactly; rounding leaves it a few ulps either side.
+        D[np.abs(D) <= 1e-13 * (np.abs(s_w * d_b) + np.abs(s_b * d_w))] = 0.0
+        Nu = c_w * d_b
+        Nu -= c_b * d_w
+        Ny = s_w * c_b
+        Ny -= s_b * c_w
+        w = Nu + 2.0 * D
+        w *= Nu
+        np.sqrt(w, out=w)
+        w /= Ny
+        irregular = ~(w >= 1e-3) | ~(w < 1.0) | ~(D > 0.0) | (Nu < 0.0)
+        irregular |= np.abs(Rw - Rb) <= tolerance * Rw
+        factor = np.arctanh(w)
+        factor /= w
+        factor /= Ny
+        factor /= X
+        K = Nu * factor
+        S = D * factor
+        ks = np.minimum(Nu / D, _MAX_KS)
+    return K, S, ks, irregular
+
+
+def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
+    """Every case of :func:`black_white`, element by element in vector form: limits, flags and bounds."""
+    D = (Rw + Gw) * (Rb - Gb) - (Rb + Gb) * (Rw - Gw)
+    D = np.where(np.abs(D) <= 1e-13 * ((Rw + Gw) * np.abs(Rb - Gb) + (Rb + Gb) * np.abs(Rw - Gw)), 0.0, D)
+    Nu = (1.0 - Rw) * (1.0 - Gw) * (Rb - Gb) - (1.0 - Rb) * (1.0 - Gb) * (Rw - Gw)
+    Ny = (Rw + Gw) * (1.0 - Rb) * (1.0 - Gb) - (Rb + Gb) * (1.0 - Rw) * (1.0 - Gw)
+
+    # Rounding leaves N_u a few ulps below 0 for a non-absorbing film: only a clearly negative K/S is
+    # out of range.
+    scale = (1.0 - Rw) * (1.0 - Gw) * np.abs(Rb - Gb) + (1.0 - Rb) * (1.0 - Gb) * np.abs(Rw - Gw)
+    negative_k = Nu < -1e-12 * scale
+    Nu = np.maximum(Nu, 0.0)
+    b_num = np.sqrt(Nu * np.maximum(Nu + 2.0 * D, 0.0))  # b * |D|
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        contrast_gap = np.where(Rw > 0.0, 1.0 - Rb / np.where(Rw > 0.0, Rw, 1.0), -1.0)
+    opaque = np.abs(contrast_gap) <= tolerance
+    # y > b is what makes S X finite; D >= 0 and N_y > 0 are needed for non-negative S.
+    regular = ~opaque & (D >= 0.0) & (Ny > b_num)
+
+    safe_Ny = np.where(regular, Ny, 1.0)
+    w = np.where(regular, b_num / safe_Ny, 0.0)
+    factor = _artanhc(w)
+    SX = np.where(regular, D / safe_Ny * factor, 0.0)
+    KX = np.where(regular, Nu / safe_Ny * factor, 0.0)
+
+    # K/S = N_u / D wherever D > 0 (also for opaque films, where it tends to (1 - R)^2 / 2R); a pure
+    # absorber (D = 0) gets the largest K/S kmpipe represents; readings the system cannot explain get the
+    # K/S of the mean of the two readings taken as the masstone.
+    positive_D = D > 0.0
+    masstone = np.clip(0.5 * (Rb + Rw), _MIN_REFLECTANCE, 1.0)
+    with np.errstate(over="ignore"):
+        system_ks = Nu / np.where(positive_D, D, 1.0)
+    ks = np.where(
+        positive_D,
+        np.minimum(system_ks, _MAX_KS),
+        np.where(regular, _MAX_KS, ks_from_reflectance_infinite(masstone)),
+    )
+    bounded = ~regular
+    if np.any(bounded):
+        SX_min = _opaque_lower_bound_sx(ks[bounded], Gb[bounded], Gw[bounded], tolerance)
+        SX[bounded] = SX_min
+        KX[bounded] = SX_min * ks[bounded]
+
+    flags = np.zeros(Rb.shape, dtype=np.uint8)
+    flags[opaque] |= np.uint8(Flag.OPAQUE)
+    flags[~opaque & (~regular | negative_k)] |= np.uint8(Flag.OUT_OF_RANGE)
+    return KX / X, SX / X, ks, flags
+
+
+def curtis(R_over_black, R_over_white, X=1.0, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
+    """Curtis et al. 1997 (thesis eq. 4.5 with arcoth): ideal backings, black 0 and white 1.
+
+    Stable form: a - 1 = (1 - R_w)(1 - R_b) / (2 R_b), which :func:`black_white` reproduces exactly
+    with G_b = 0, G_w = 1 (D = 2 R_b, N_u = (1 - R_b)(1 - R_w), N_y = (1 + R_w)(1 - R_b)), keeping full
+    precision as R_b -> 0 where the textbook form loses ~9 digits at R_b ~ 1e-9.
+    """
+    Rb = np.asarray(R_over_black, dtype=np.float64)
+    return black_white(Rb, R_over_white, np.zeros_like(Rb), np.ones_like(Rb), X, tolerance=tolerance)

@@ -1,0 +1,192 @@
+"""Kubelka-Munk forward model of a film and of film stacks.
+
+Notation (Kubelka 1948; thesis chapter 3.3): K absorption and S scattering coefficients per unit length
+(kmpipe uses 1/mm), X film thickness in the same length unit (mm), R_g reflectance of what lies beneath,
+a = 1 + K/S, b = sqrt(a^2 - 1), R_inf = a - b.
+
+Every function takes numpy arrays of any broadcastable shape (wavelength or camera channel last) and
+returns float64 arrays; nothing here divides by S or by b, so K = 0, S = 0 and very thick films are
+exact limits rather than special cases (see ``shared/method/notes.md``, "Forward model without
+cancellation or overflow").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Below this optical thickness x = beta X, tanh(x)/x is evaluated by its Taylor series.
+_SERIES_LIMIT = 1e-3
+
+
+def _tanhc(x: np.ndarray) -> np.ndarray:
+    """tanh(x) / x for x >= 0, with the series 1 - x^2/3 + 2 x^4/15 - 17 x^6/315 near 0 (error < 1e-19)."""
+    x2 = x * x
+    series = 1.0 + x2 * (-1.0 / 3.0 + x2 * (2.0 / 15.0 - x2 * (17.0 / 315.0)))
+    safe = np.where(x < _SERIES_LIMIT, 1.0, x)
+    return np.where(x < _SERIES_LIMIT, series, np.tanh(safe) / safe)
+
+
+def _sech(x: np.ndarray) -> np.ndarray:
+    """sech(x) = 2 e^-x / (1 + e^-2x) for x >= 0, which never overflows."""
+    e = np.exp(-x)
+    return 2.0 * e / (1.0 + e * e)
+
+
+def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
+    """Reflectance R0 of a film over an ideal black background, and its diffuse transmittance T.
+
+    Textbook form (thesis eq. 4.4; Kubelka 1948): R0 = sinh(bSX) / (a sinh(bSX) + b cosh(bSX)),
+    T = b / (a sinh(bSX) + b cosh(bSX)). Evaluated as
+
+        beta = sqrt(K (K + 2 S)),  x = beta X,  t = tanh(x) / x,  D = 1 + (K + S) X t,
+        R0 = S X t / D,  T = sech(x) / D,
+
+    which is algebraically identical (b S = beta) and exact at K = 0 (R0 = SX / (1 + SX)),
+    S = 0 (T = exp(-KX)), X = 0 (R0 = 0, T = 1) and for arbitrarily thick films (R0 -> R_inf, T -> 0).
+
+    Parameters
+    ----------
+    K, S
+        Absorption and scattering coefficients, >= 0, per unit length (1/mm).
+    X
+        Film thickness, >= 0, in the same length unit (mm).
+    """
+    K, S, X = (np.asarray(v, dtype=np.float64) for v in (K, S, X))
+    beta = np.sqrt(K * (K + 2.0 * S))
+    x = beta * X
+    Xt = X * _tanhc(x)
+    D = 1.0 + (K + S) * Xt
+    return S * Xt / D, _sech(x) / D
+
+
+def film_over_background(R0, T, R_g) -> np.ndarray:
+    """Reflectance of a film (R0, T) lying on a background of reflectance R_g (thesis eq. 3.13).
+
+    R = R0 + T^2 R_g / (1 - R0 R_g): the film's own reflectance plus the light transmitted twice
+    after any number of inter-reflections between film and background.
+    """
+    R0, T, R_g = (np.asarray(v, dtype=np.float64) for v in (R0, T, R_g))
+    return R0 + T * T * R_g / (1.0 - R0 * R_g)
+
+
+def reflectance_over_background(K, S, X, R_g) -> np.ndarray:
+    """Reflectance of a film (K, S per mm; X mm) over a background of reflectance R_g."""
+    R0, T = film_reflectance_transmittance(K, S, X)
+    return film_over_background(R0, T, R_g)
+
+
+def reflectance_infinite(K, S) -> np.ndarray:
+    """Reflectance R_inf of an opaque (infinitely thick) layer: R_inf = a - b, a = 1 + K/S.
+
+    Computed from q = K/S by :func:`reflectance_infinite_from_ks` (so K and S near the ends of the
+    floating-point range cannot underflow or overflow K (K + 2S)). S = 0 gives 0, also for K = 0: a film
+    that does not scatter reflects nothing at any thickness (R0 = 0), so its limit is 0.
+    """
+    K, S = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (K, S)))
+    scatters = S > 0.0
+    with np.errstate(over="ignore"):
+        q = K / np.where(scatters, S, 1.0)
+    return np.where(scatters, reflectance_infinite_from_ks(q), 0.0)
+
+
+def ks_from_reflectance_infinite(R_inf) -> np.ndarray:
+    """K/S of an opaque layer from its reflectance, KM convention: K/S = (1 - R_inf)^2 / (2 R_inf).
+
+    (The radiative-transfer convention uses 4 R_inf in the denominator; kmpipe never does.)
+    R_inf = 0 gives +inf (a black absorber); callers that need a finite value must clip R_inf first.
+    """
+    R_inf = np.asarray(R_inf, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        return (1.0 - R_inf) ** 2 / (2.0 * R_inf)
+
+
+def reflectance_infinite_from_ks(ks) -> np.ndarray:
+    """R_inf from K/S (KM convention): R_inf = 1 / (1 + q + sqrt(q (q + 2))), q = K/S.
+
+    This is a - b written as 1 / (a + b), which has no cancellation for small or large q; for q beyond
+    1e150 (where q (q + 2) would overflow) it uses 1 / (2 q + 2), the same to rounding.
+    """
+    q = np.asarray(ks, dtype=np.float64)
+    huge = q > 1e150
+    safe = np.where(huge, 0.0, q)
+    return np.where(huge, 1.0 / (2.0 * q + 2.0), 1.0 / (1.0 + safe + np.sqrt(safe * (safe + 2.0))))
+
+
+def stack_films(R0, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compose homogeneous films into one layer (thesis eqs. 3.13 and 3.14), composed bottom-up.
+
+    Parameters
+    ----------
+    R0, T
+        Arrays of shape (n_layers, ...): each layer's reflectance (same from both sides for a
+        homogeneous KM film) and transmittance; index 0 is the TOP layer.
+
+    Returns
+    -------
+    R_top, T_total, R_bottom
+        Reflectance of the stack seen from above, its transmittance (the same in both directions),
+        and its reflectance seen from below. Adding layer i on top of the partial stack (r, t, r'):
+        r <- R_i + T_i^2 r / (1 - R_i r),  t <- T_i t / (1 - R_i r),  r' <- r' + t^2 R_i / (1 - R_i r).
+        Composing top-down instead would need each partial stack's underside reflectance, which is
+        why the recurrence runs from the bottom.
+    """
+    R0 = np.asarray(R0, dtype=np.float64)
+    T = np.asarray(T, dtype=np.float64)
+    R0, T = np.broadcast_arrays(R0, T)
+    r_top, t, r_bottom = R0[-1], T[-1], R0[-1]
+    for R_i, T_i in zip(R0[-2::-1], T[-2::-1], strict=True):
+        denominator = 1.0 - R_i * r_top
+        r_bottom = r_bottom + t * t * R_i / denominator
+        t = T_i * t / denominator
+        r_top = R_i + T_i * T_i * r_top / denominator
+    return r_top, t, r_bottom
+
+
+def stack_over_substrate(R0, T, R_g) -> np.ndarray:
+    """Reflectance of a stack of films (index 0 on top, shape (n_layers, ...)) over a substrate R_g."""
+    R_top, T_total, R_bottom = stack_films(R0, T)
+    R_g = np.asarray(R_g, dtype=np.float64)
+    return R_top + T_total * T_total * R_g / (1.0 - R_bottom * R_g)
+
+
+def hiding_thickness(K, S, R_black, R_white, contrast_ratio: float = 0.98) -> np.ndarray:
+    """Thickness at which the film hides its backing: R(over black) / R(over white) = contrast_ratio.
+
+    The contrast ratio of a KM film rises monotonically from R_black / R_white at X = 0 towards 1, so
+    the root is bracketed and found by bisection on log X (vectorized; 64 halvings of a bracket 55 wide
+    in log X leave less than one ulp). Returns +inf where the film never hides (S = 0: a clear,
+    absorbing film) and 0 where the backings already meet the ratio.
+
+    Parameters
+    ----------
+    K, S
+        Coefficients per unit length (1/mm).
+    R_black, R_white
+        Reflectances of the two backings (e.g. 0.03 and 0.85 for a Leneta-style card).
+    contrast_ratio
+        Target ratio in (0, 1); 0.98 is the common definition of hiding.
+    """
+    if not 0.0 < contrast_ratio < 1.0:
+        raise ValueError(f"contrast_ratio must lie in (0, 1), got {contrast_ratio}")
+    K, S, R_black, R_white = np.broadcast_arrays(
+        *(np.asarray(v, dtype=np.float64) for v in (K, S, R_black, R_white))
+    )
+
+    def contrast(X):
+        R0, T = film_reflectance_transmittance(K, S, X)
+        return film_over_background(R0, T, R_black) / film_over_background(R0, T, R_white)
+
+    never = S <= 0.0
+    S = np.where(never, 1.0, S)  # a stand-in, so that no 0/0 arises; the answer there is inf
+    already = contrast(np.zeros_like(K)) >= contrast_ratio
+    # Bracket in optical thickness: with s = K + S the contrast is 1 - O(e^-2x); 1e-12 .. 1e12 / s covers it.
+    scale = np.where(never, 1.0, K + S)
+    lo = np.full_like(K, np.log(1e-12)) - np.log(scale)
+    hi = np.full_like(K, np.log(1e12)) - np.log(scale)
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        below = contrast(np.exp(mid)) < contrast_ratio
+        lo = np.where(below, mid, lo)
+        hi = np.where(below, hi, mid)
+    X = np.exp(0.5 * (lo + hi))
+    return np.where(never, np.inf, np.where(already, 0.0, X))

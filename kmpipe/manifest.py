@@ -1,0 +1,232 @@
+"""Sample manifests (TOML): what was measured for one sample, and how to fit it.
+
+The format is documented in ``docs/formats.md`` ("Sample manifest"). Parsing is strict (unknown keys are
+errors, so a typo never silently drops a setting) and every error names the file, the line and the field.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from kmpipe.errors import InputError
+
+METHODS = ("two-constant", "black-white", "lsq")
+
+_LENGTH_UNITS_MM = {"nm": 1e-6, "um": 1e-3, "µm": 1e-3, "μm": 1e-3, "mm": 1.0}
+_LENGTH = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµμ]+)\s*$")
+
+
+def parse_thickness_mm(text: str) -> float:
+    """'30 um', '0.03 mm', '30000 nm' -> thickness in mm (> 0). Raises ValueError with what was expected."""
+    match = _LENGTH.match(str(text))
+    if not match or match.group(2) not in _LENGTH_UNITS_MM:
+        raise ValueError(
+            f"expected a thickness with a unit, like '30 um' or '0.03 mm' (units: nm, um, mm), got {text!r}"
+        )
+    value = float(match.group(1)) * _LENGTH_UNITS_MM[match.group(2)]
+    if not (value > 0.0 and math.isfinite(value)):
+        raise ValueError(f"thickness must be > 0, got {text!r}")
+    return value
+
+
+def parse_grid(text: str) -> tuple[float, float, float]:
+    """'400:700:10' -> (400, 700, 10) in nm: start, stop (inclusive), step."""
+    parts = str(text).split(":")
+    try:
+        start, stop, step = (float(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"expected START:STOP:STEP in nm, like '400:700:10', got {text!r}") from None
+    if not (step > 0.0 and start < stop):
+        raise ValueError(f"grid needs START < STOP and STEP > 0, got {text!r}")
+    return start, stop, step
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SampleInfo(_Strict):
+    name: str = Field(min_length=1)
+    product: str = ""
+    kind: str = ""
+
+
+class ColumnRef(_Strict):
+    """A column of a spectral CSV, the file relative to the manifest."""
+
+    file: str = Field(min_length=1)
+    column: str = Field(min_length=1)
+
+
+class WhiteReference(ColumnRef):
+    certified: str = "builtin:baso4"
+    dark: ColumnRef | None = None
+
+
+class Backing(ColumnRef):
+    name: str = Field(min_length=1)
+
+
+class Masstone(ColumnRef):
+    pass
+
+
+class Film(ColumnRef):
+    over: str = Field(min_length=1)
+    thickness: str
+
+    @field_validator("thickness")
+    @classmethod
+    def _thickness(cls, value: str) -> str:
+        parse_thickness_mm(value)
+        return value
+
+    @property
+    def thickness_mm(self) -> float:
+        return parse_thickness_mm(self.thickness)
+
+
+class FitSettings(_Strict):
+    method: Literal["two-constant", "black-white", "lsq"] = "lsq"
+    grid: str | None = None
+    saunderson: tuple[float, float] | None = None
+    noise: float | None = Field(default=None, gt=0.0, lt=0.5)
+    smoothness: float = Field(default=0.0, ge=0.0)
+    opaque_tolerance: float = Field(default=1e-3, gt=0.0, lt=0.5)
+
+    @field_validator("grid")
+    @classmethod
+    def _grid(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_grid(value)
+        return value
+
+    @field_validator("saunderson")
+    @classmethod
+    def _saunderson(cls, value):
+        if value is not None and not all(0.0 <= k < 1.0 for k in value):
+            raise ValueError("Saunderson constants [k1, k2] must each lie in [0, 1), e.g. [0.04, 0.6]")
+        return value
+
+
+class Manifest(_Strict):
+    sample: SampleInfo
+    white: WhiteReference | None = None
+    backing: list[Backing] = Field(default_factory=list)
+    masstone: list[Masstone] = Field(default_factory=list)
+    film: list[Film] = Field(min_length=1)
+    fit: FitSettings = FitSettings()
+
+    @model_validator(mode="after")
+    def _references(self) -> Manifest:
+        names = [b.name for b in self.backing]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise _LocatedError(("backing", i, "name"), f"backing name {name!r} is used twice")
+        for i, film in enumerate(self.film):
+            if film.over not in names:
+                known = ", ".join(repr(n) for n in names) or "none is defined"
+                raise _LocatedError(
+                    ("film", i, "over"), f"names backing {film.over!r}, but the backings are: {known}"
+                )
+        return self
+
+
+class _LocatedError(ValueError):
+    """A cross-field error that knows which field it belongs to."""
+
+    def __init__(self, loc: tuple, message: str) -> None:
+        super().__init__(message)
+        self.loc = loc
+        self.message = message
+
+
+def _toml_line(text: str, loc: tuple) -> int | None:
+    """1-based line of the field at ``loc`` (e.g. ('film', 1, 'thickness')) in TOML text, if found."""
+    lines = text.splitlines()
+    table, index, key = None, None, None
+    parts = [p for p in loc if not isinstance(p, str) or p]
+    if parts:
+        table = parts[0]
+    if len(parts) > 1 and isinstance(parts[1], int):
+        index = parts[1]
+        key = parts[2] if len(parts) > 2 else None
+    elif len(parts) > 1:
+        key = parts[1]
+    if table is None:
+        return None
+    header = re.compile(r"^\s*\[\[?\s*" + re.escape(str(table)) + r"\s*\]\]?\s*(#.*)?$")
+    any_header = re.compile(r"^\s*\[")
+    seen = -1
+    start = None
+    for number, line in enumerate(lines, 1):
+        if header.match(line):
+            seen += 1
+            if index is None or seen == index:
+                start = number
+                break
+    if start is None:
+        return None
+    if key is None:
+        return start
+    key_line = re.compile(r"^\s*" + re.escape(str(key)) + r"\s*=")
+    for number in range(start + 1, len(lines) + 1):
+        line = lines[number - 1]
+        if any_header.match(line):
+            break
+        if key_line.match(line):
+            return number
+    return start
+
+
+def _field_name(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part + 1}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    """Read and validate a sample manifest; InputError (file, line, field) on any problem."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("the sample manifest does not exist", path=path) from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read the sample manifest as UTF-8 text ({err})", path=path) from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        match = re.search(r"line (\d+)", str(err))
+        raise InputError(
+            f"not valid TOML: {err}", path=path, line=int(match.group(1)) if match else None
+        ) from None
+    try:
+        return Manifest.model_validate(data)
+    except ValidationError as err:
+        first = err.errors()[0]
+        loc = tuple(first["loc"])
+        message = first["msg"]
+        context = first.get("ctx", {}).get("error")
+        if isinstance(context, _LocatedError):
+            loc, message = context.loc, context.message
+        elif first["type"] == "extra_forbidden":
+            message = "unknown field (check its spelling; see docs/formats.md for the manifest's fields)"
+        elif first["type"] == "missing":
+            message = "is required but missing"
+        message = message.removeprefix("Value error, ")
+        more = len(err.errors()) - 1
+        suffix = f" ({more} more problem{'s' if more > 1 else ''} after this one)" if more else ""
+        raise InputError(
+            message + suffix, path=path, line=_toml_line(text, loc), field=_field_name(loc)
+        ) from None

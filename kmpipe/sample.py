@@ -1,0 +1,258 @@
+"""One sample's measurements, loaded from its manifest onto one wavelength grid as reflectance.
+
+Reading a manifest resolves every CSV column it names, converts radiance to reflectance with the white
+standard when the manifest has a ``[white]``, resamples onto the fitting grid, and arranges the
+measurements as arrays that the inversions and the joint fit take directly.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from kmpipe.errors import InputError
+from kmpipe.manifest import FitSettings, Manifest, load_manifest, parse_grid
+from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
+from kmpipe.white import certified_reflectance, radiance_to_reflectance
+
+#: Reflectance above this after white normalization means the white reading or the units are wrong.
+MAX_REFLECTANCE = 1.5
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One measured column: a masstone (opaque layer) or a film of known thickness over a named backing."""
+
+    id: str  # "FILE:COLUMN"
+    role: str  # "masstone" | "film"
+    file: Path
+    column: str
+    over: str | None
+    thickness_mm: float  # inf for a masstone
+
+
+@dataclass(frozen=True)
+class Sample:
+    """A sample's reflectances on one grid (wavelength or channel last)."""
+
+    name: str
+    product: str
+    kind: str
+    manifest_path: Path
+    wavelengths: np.ndarray | None  # nm; None for camera-channel data
+    channels: tuple[str, ...] | None
+    measurements: tuple[Measurement, ...]
+    readings: np.ndarray  # (m, n) reflectance as measured (surface reflection included)
+    backings: dict[str, np.ndarray]  # name -> (n,) measured reflectance of the bare backing
+    settings: FitSettings
+    inputs: tuple[Path, ...]  # every file read, manifest first
+
+    @property
+    def labels(self) -> list:
+        """Wavelengths (nm, as numbers) or channel names, one per column of ``readings``."""
+        if self.wavelengths is not None:
+            return [float(w) for w in self.wavelengths]
+        return list(self.channels)
+
+    @property
+    def thickness_mm(self) -> np.ndarray:
+        return np.array([m.thickness_mm for m in self.measurements])
+
+    def background_of(self, measurement: Measurement) -> np.ndarray:
+        """Measured reflectance of the backing beneath a film (zeros for a masstone, which has none)."""
+        if measurement.over is None:
+            return np.zeros(self.readings.shape[1])
+        return self.backings[measurement.over]
+
+
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes, for provenance."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+class _Tables:
+    """Reads each CSV once and checks that its quantity is what the manifest implies."""
+
+    def __init__(self, base: Path, manifest_path: Path, quantity: str) -> None:
+        self.base = base
+        self.manifest_path = manifest_path
+        self.quantity = quantity
+        self.cache: dict[Path, SpectralTable] = {}
+
+    def get(self, ref, field: str) -> tuple[SpectralTable, Path]:
+        path = (self.base / ref.file).resolve()
+        if path not in self.cache:
+            if not path.is_file():
+                raise InputError(
+                    f"names the file {ref.file!r}, which does not exist (looked for {path})",
+                    path=self.manifest_path,
+                    field=field + ".file",
+                )
+            table = read_spectra_csv(path)
+            if table.quantity != self.quantity:
+                why = (
+                    "the manifest has a [white] reference"
+                    if self.quantity == "radiance"
+                    else "there is no [white]"
+                )
+                raise InputError(
+                    f"holds {table.quantity}, but {why}, so it must hold {self.quantity} "
+                    f"(set '# quantity: {self.quantity}' or change the manifest)",
+                    path=path,
+                    field="quantity",
+                )
+            self.cache[path] = table
+        table = self.cache[path]
+        if ref.column not in table.columns:
+            raise InputError(
+                f"names column {ref.column!r} of {ref.file}, "
+                f"which has the columns: {', '.join(table.columns)}",
+                path=self.manifest_path,
+                field=field + ".column",
+            )
+        return table, path
+
+
+def _fitting_grid(settings: FitSettings, first: SpectralTable, override: str | None) -> np.ndarray | None:
+    text = override or settings.grid
+    if first.wavelengths is None:
+        return None
+    if text is None:
+        return np.asarray(first.wavelengths, dtype=np.float64)
+    start, stop, step = parse_grid(text)
+    return uniform_grid(start, stop, step)
+
+
+def _on_grid(table: SpectralTable, grid: np.ndarray | None, channels) -> SpectralTable:
+    if grid is None:
+        if table.channels != channels:
+            raise InputError(
+                f"has channels {table.channels}, but the sample's first file has {channels}", path=table.path
+            )
+        return table
+    if table.wavelengths is None:
+        raise InputError("holds camera channels, but the sample's other files hold spectra", path=table.path)
+    if table.wavelengths.shape == grid.shape and np.array_equal(table.wavelengths, grid):
+        return table
+    return resample(table, grid)
+
+
+def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample:
+    """Load a sample manifest and everything it names, as reflectance on one grid.
+
+    Parameters
+    ----------
+    manifest_path
+        The TOML manifest; file names inside it are relative to its folder.
+    grid
+        'START:STOP:STEP' in nm to fit on, overriding the manifest's ``[fit] grid``; default: the grid of
+        the first file the manifest names.
+    """
+    manifest_path = Path(manifest_path)
+    manifest: Manifest = load_manifest(manifest_path)
+    base = manifest_path.parent
+    quantity = "radiance" if manifest.white is not None else "reflectance"
+    tables = _Tables(base, manifest_path, quantity)
+
+    refs: list[tuple[str, object]] = []
+    refs += [(f"backing[{i + 1}]", b) for i, b in enumerate(manifest.backing)]
+    refs += [(f"masstone[{i + 1}]", m) for i, m in enumerate(manifest.masstone)]
+    refs += [(f"film[{i + 1}]", f) for i, f in enumerate(manifest.film)]
+    if manifest.white is not None:
+        refs.insert(0, ("white", manifest.white))
+        if manifest.white.dark is not None:
+            refs.insert(1, ("white.dark", manifest.white.dark))
+    loaded = [(field, ref, *tables.get(ref, field)) for field, ref in refs]
+    first = loaded[0][2]
+    try:
+        fit_grid = _fitting_grid(manifest.fit, first, grid)
+    except ValueError as err:
+        raise InputError(
+            str(err), field="--grid" if grid else "fit.grid", path=None if grid else manifest_path
+        ) from None
+    on_grid = {path: _on_grid(table, fit_grid, first.channels) for _, _, table, path in loaded}
+
+    def column(ref, path) -> np.ndarray:
+        return np.asarray(on_grid[path].column(ref.column), dtype=np.float64)
+
+    def reflectance(ref, path) -> np.ndarray:
+        values = column(ref, path)
+        if manifest.white is not None:
+            values = radiance_to_reflectance(
+                values, white, certified, dark=dark, source=f"{path}:{ref.column}"
+            )
+        bad = np.flatnonzero(values > MAX_REFLECTANCE)
+        if bad.size:
+            label = fit_grid[bad[0]] if fit_grid is not None else first.channels[bad[0]]
+            raise InputError(
+                f"column {ref.column!r} has reflectance {values[bad[0]]:.4g} at {label}, "
+                f"above {MAX_REFLECTANCE}: "
+                "check the white reference and the units",
+                path=path,
+            )
+        return values
+
+    white = certified = dark = None
+    if manifest.white is not None:
+        white_path = next(path for field, _, _, path in loaded if field == "white")
+        white = column(manifest.white, white_path)
+        if manifest.white.dark is not None:
+            dark_path = next(path for field, _, _, path in loaded if field == "white.dark")
+            dark = column(manifest.white.dark, dark_path)
+        if fit_grid is None:
+            raise InputError(
+                "has a [white] radiance reference, but its files hold camera channels: camera data must be "
+                "given as reflectance (kmpipe ingest-raw writes it so); remove [white]",
+                path=manifest_path,
+                field="white",
+            )
+        try:
+            certified = certified_reflectance(manifest.white.certified, fit_grid, base_dir=base)
+        except InputError as err:
+            if err.path is None:
+                err.path, err.field = manifest_path, "white.certified"
+            raise
+
+    backings = {}
+    measurements, readings = [], []
+    for field, ref, _, path in loaded:
+        if field.startswith("backing"):
+            backings[ref.name] = reflectance(ref, path)
+        elif field.startswith(("masstone", "film")):
+            is_film = field.startswith("film")
+            measurements.append(
+                Measurement(
+                    id=f"{ref.file}:{ref.column}",
+                    role="film" if is_film else "masstone",
+                    file=path,
+                    column=ref.column,
+                    over=ref.over if is_film else None,
+                    thickness_mm=ref.thickness_mm if is_film else float("inf"),
+                )
+            )
+            readings.append(reflectance(ref, path))
+
+    inputs = [manifest_path.resolve()]
+    for _, _, _, path in loaded:
+        if path not in inputs:
+            inputs.append(path)
+    return Sample(
+        name=manifest.sample.name,
+        product=manifest.sample.product,
+        kind=manifest.sample.kind,
+        manifest_path=manifest_path,
+        wavelengths=fit_grid,
+        channels=first.channels if fit_grid is None else None,
+        measurements=tuple(measurements),
+        readings=np.array(readings),
+        backings=backings,
+        settings=manifest.fit,
+        inputs=tuple(inputs),
+    )

@@ -1,0 +1,210 @@
+"""Regenerate the bundled example samples: SIMULATED drawdown measurements of cosmetic films.
+
+No public set of cosmetic drawdowns over black and white backings exists, so the examples are simulated:
+
+- K and S of each product are Duncan mixtures (K = sum c_i K_i, S = sum c_i S_i) of real pigments from the
+  RIT Artist Paint Spectral Database (``shared/data/pigments/rit_golden_acrylic_ks.csv``), interpolated to
+  1 nm; that table's S is relative, so both are scaled by ``PER_MM`` to plausible per-mm values (a 20 um
+  foundation film hides about half of a black backing, as real medium-coverage foundations do).
+- Readings are what a CS-2000 at 1 nm would record under CIE D55: radiance = D55 x reflectance x gain,
+  plus a dark offset, with noise of the size the Kimera paint repeats show (``shared/data/paints``:
+  about 0.6 % of the reading, repeat to repeat).
+- Backings are a black card (~0.035) and a white card (~0.78-0.86) with gentle spectral slopes.
+
+Run from the repository root: ``.venv/bin/python recipes/samples/simulate_samples.py``. The output is
+deterministic (fixed seeds); the true K and S are written beside each sample as ``truth.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import colour
+import numpy as np
+
+from kmpipe.joint_fit import predict_readings
+from kmpipe.spectra import SpectralTable, uniform_grid, write_spectra_csv
+from kmpipe.white import baso4_typical
+
+HERE = Path(__file__).resolve().parent
+PIGMENTS = HERE.parents[2] / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
+WAVELENGTHS = uniform_grid(380, 780, 1)
+PER_MM = 60.0  # relative RIT units -> 1/mm
+GAIN = 0.0105  # W sr-1 m-2 nm-1 per unit of relative D55 power (D55 ~100 at 560 nm) and unit reflectance
+DARK = 2.0e-6  # dark offset, W sr-1 m-2 nm-1
+RELATIVE_NOISE = 0.006  # Kimera repeat spread: ~0.6 % of the reading
+ABSOLUTE_NOISE = 1.0e-6  # W sr-1 m-2 nm-1
+
+SAMPLES = {
+    "F1": {
+        "product": "Liquid foundation, Natural Beige (simulated)",
+        "kind": "foundation",
+        "mix": {
+            "TitaniumWhite": 1.0,
+            "HansaYellowOpaque": 0.3,
+            "CadmiumOrange": 0.25,
+            "PyrroleRed": 0.05,
+            "BoneBlack": 0.25,
+        },
+        "thicknesses_um": (15, 30),
+    },
+    "F2": {
+        "product": "Liquid foundation, Warm Sand (simulated)",
+        "kind": "foundation",
+        "mix": {
+            "TitaniumWhite": 1.0,
+            "HansaYellowOpaque": 0.45,
+            "CadmiumOrange": 0.45,
+            "PyrroleRed": 0.12,
+            "BoneBlack": 0.6,
+        },
+        "thicknesses_um": (15, 30),
+    },
+    "B1": {
+        "product": "Cream blush, Rose (simulated)",
+        "kind": "blush",
+        "mix": {"TitaniumWhite": 1.0, "QuinacridoneRed": 0.25, "CadmiumOrange": 0.03},
+        "thicknesses_um": (10, 20),
+    },
+    "L1": {
+        "product": "Lipstick, Classic Red (simulated)",
+        "kind": "lipstick",
+        "mix": {"PyrroleRed": 1.0, "QuinacridoneMagenta": 0.15, "TitaniumWhite": 0.05},
+        "thicknesses_um": (10, 20),
+    },
+    "L2": {
+        "product": "Lipstick, Berry (simulated)",
+        "kind": "lipstick",
+        "mix": {"QuinacridoneMagenta": 1.0, "DioxazinePurple": 0.1, "PyrroleRed": 0.3},
+        "thicknesses_um": (10, 20),
+    },
+}
+
+
+def read_pigments() -> dict[str, dict[str, np.ndarray]]:
+    """{pigment: {'K': (n,), 'S': (n,)}} on WAVELENGTHS (linear interpolation, 750 nm value held to 780)."""
+    with open(PIGMENTS, encoding="utf-8") as handle:
+        rows = list(csv.reader(line for line in handle if not line.startswith("#")))
+    grid = np.array([float(v) for v in rows[0][3:]])
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for row in rows[1:]:
+        values = np.array([float(v) for v in row[3:]])
+        out.setdefault(row[0], {})[row[2]] = np.interp(WAVELENGTHS, grid, values)
+    return out
+
+
+def backings() -> dict[str, np.ndarray]:
+    x = (WAVELENGTHS - 380.0) / 400.0
+    return {
+        "black": 0.035 + 0.006 * x,
+        "white": 0.78 + 0.08 * (1.0 - np.exp(-(WAVELENGTHS - 380.0) / 60.0)),
+    }
+
+
+def header(sample: str, what: str, serial: str) -> dict[str, str]:
+    return {
+        "quantity": "radiance",
+        "units": "W sr-1 m-2 nm-1",
+        "instrument": "Konica Minolta CS-2000A (SIMULATED)",
+        "serial": serial,
+        "illuminant": "CIE D55",
+        "geometry": "0:45, 1 deg aperture",
+        "time": "2026-11-20T10:00:00Z",
+        "note": f"SIMULATED data for sample {sample}: {what}; made by recipes/samples/simulate_samples.py",
+    }
+
+
+def main() -> None:
+    pigments = read_pigments()
+    d55 = colour.SDS_ILLUMINANTS["D55"].copy().align(colour.SpectralShape(380, 780, 1)).values
+    light = GAIN * d55
+    cards = backings()
+    for index, (name, spec) in enumerate(SAMPLES.items()):
+        rng = np.random.default_rng(1000 + index)
+        K = PER_MM * sum(c * pigments[p]["K"] for p, c in spec["mix"].items())
+        S = PER_MM * sum(c * pigments[p]["S"] for p, c in spec["mix"].items())
+
+        def measure(reflectance: np.ndarray, rng: np.random.Generator = rng) -> np.ndarray:
+            signal = light * reflectance
+            noise = rng.normal(0.0, 1.0, signal.shape) * (RELATIVE_NOISE * signal + ABSOLUTE_NOISE)
+            return signal + DARK + noise
+
+        folder = HERE / name
+        folder.mkdir(exist_ok=True)
+        serial = "1234567"
+        white = measure(baso4_typical(WAVELENGTHS))
+        dark = DARK + rng.normal(0.0, ABSOLUTE_NOISE / 4, WAVELENGTHS.shape)
+        write_spectra_csv(
+            SpectralTable(
+                WAVELENGTHS,
+                None,
+                ("baso4", "dark"),
+                np.array([white, np.abs(dark)]),
+                header(name, "BaSO4 white standard and a dark reading", serial),
+            ),
+            folder / "white.csv",
+        )
+        write_spectra_csv(
+            SpectralTable(
+                WAVELENGTHS,
+                None,
+                ("black", "white"),
+                np.array([measure(cards["black"]), measure(cards["white"])]),
+                header(name, "bare black and white backings of the drawdown card", serial),
+            ),
+            folder / "backings.csv",
+        )
+        columns, thickness, grounds = ["masstone"], [np.inf], [np.zeros_like(WAVELENGTHS)]
+        for um in spec["thicknesses_um"]:
+            for over in ("black", "white"):
+                columns.append(f"film_{um}um_over_{over}")
+                thickness.append(um / 1000.0)
+                grounds.append(cards[over])
+        reflectance = predict_readings(K, S, np.array(thickness), np.array(grounds))
+        write_spectra_csv(
+            SpectralTable(
+                WAVELENGTHS,
+                None,
+                tuple(columns),
+                np.array([measure(r) for r in reflectance]),
+                header(name, f"{spec['product']}: masstone and drawdowns", serial),
+            ),
+            folder / f"{name}.csv",
+        )
+        films = "\n".join(
+            f'[[film]]\nfile = "{name}.csv"\ncolumn = "{c}"\n'
+            f'over = "{c.rsplit("_", 1)[1]}"\nthickness = "{c.split("_")[1][:-2]} um"\n'
+            for c in columns[1:]
+        )
+        (folder / "manifest.toml").write_text(
+            f"# SIMULATED example sample (see simulate_samples.py): CS-2000 radiance under D55.\n"
+            f'[sample]\nname = "{name}"\nproduct = "{spec["product"]}"\nkind = "{spec["kind"]}"\n\n'
+            f'[white]\nfile = "white.csv"\ncolumn = "baso4"\ncertified = "builtin:baso4"\n'
+            f'dark = {{ file = "white.csv", column = "dark" }}\n\n'
+            f'[fit]\nmethod = "lsq"\ngrid = "380:780:5"\n\n'
+            f'[[backing]]\nname = "black"\nfile = "backings.csv"\ncolumn = "black"\n\n'
+            f'[[backing]]\nname = "white"\nfile = "backings.csv"\ncolumn = "white"\n\n'
+            f'[[masstone]]\nfile = "{name}.csv"\ncolumn = "masstone"\n\n{films}',
+            encoding="utf-8",
+        )
+        (folder / "truth.json").write_text(
+            json.dumps(
+                {
+                    "note": "SIMULATED: the K and S the measurements were generated from",
+                    "mix": spec["mix"],
+                    "wavelengths_nm": WAVELENGTHS.tolist(),
+                    "K_per_mm": K.tolist(),
+                    "S_per_mm": S.tolist(),
+                },
+                indent=1,
+            )
+            + "\n",
+            encoding="utf-8",
+        )
+        print(f"wrote {folder}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""The bundled OSMesa renderer. Never imports kmpipe."""
