@@ -37,6 +37,28 @@ def _saunderson_arg(text: str) -> tuple[float, float]:
     return k1, k2
 
 
+def _noise_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < 0.5:
+        raise argparse.ArgumentTypeError(
+            f"expected a standard deviation of reflectance in (0, 0.5), got {text!r}"
+        )
+    return value
+
+
+def _smoothness_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
 def _grid_arg(text: str) -> str:
     try:
         parse_grid(text)
@@ -112,6 +134,13 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
     for manifest in args.manifest:
         sample = load_sample(manifest, grid=args.grid)
         output = args.output / f"{sample.name}.json" if to_folder else args.output
+        if any(path == output for path, _ in written):
+            raise InputError(
+                f"names sample {sample.name!r}, like an earlier manifest; each sample needs its own name "
+                f"(its material is written to {output}); nothing was written for this one",
+                path=manifest,
+                field="sample.name",
+            )
         _refuse_overwriting_inputs(output, sample.inputs)
         material = fit_sample(
             sample,
@@ -221,10 +250,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--grid", type=_grid_arg, metavar="START:STOP:STEP", help="fit on this grid in nm, e.g. 400:700:10"
     )
     fit.add_argument(
-        "--smoothness", type=float, help="lsq: second-difference penalty across wavelength (e.g. 1e-6)"
+        "--smoothness",
+        type=_smoothness_arg,
+        help="lsq: second-difference penalty across wavelength (e.g. 1e-6)",
     )
     fit.add_argument(
-        "--noise", type=float, help="noise standard deviation of the readings, for standard errors"
+        "--noise", type=_noise_arg, help="noise standard deviation of the readings, for standard errors"
     )
     fit.set_defaults(run=_cmd_fit)
 

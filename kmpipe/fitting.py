@@ -10,7 +10,8 @@ Methods (``kmpipe fit --method``):
   when the sample has such pairs and from two-constant otherwise.
 
 Averaging uses only unflagged estimates; where every estimate is flagged, the largest S (the tightest
-lower bound for an opaque film) is kept with the union of the flags.
+lower bound for an opaque film) is kept with the union of the flags. At wavelengths where the closed
+form finds the film opaque, lsq keeps the closed-form K and S (exact K/S, lower-bound S).
 """
 
 from __future__ import annotations
@@ -143,8 +144,12 @@ def fit_sample(
             saunderson=saunderson,
             smoothness=smoothness,
         )
-        K, S = result.K, result.S
-        flags = result.flags | (start_flags & np.uint8(Flag.OPAQUE))
+        # Where the closed form found the film opaque, K and S are not separable: keep its exact K/S and
+        # its lower-bound S (the fit can only wander along the K/S = const valley there).
+        opaque = (start_flags & np.uint8(Flag.OPAQUE)) != 0
+        K = np.where(opaque, K0, result.K)
+        S = np.where(opaque, S0, result.S)
+        flags = np.where(opaque, start_flags, result.flags).astype(np.uint8)
         fit_info.update(
             start=start,
             library="nlopt",

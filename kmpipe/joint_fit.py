@@ -87,10 +87,11 @@ def _masstone_and_derivatives(K, S, K0, p):
     safe_den = np.where(den > 0.0, den, 1.0)
     R = np.where(den > 0.0, S / safe_den, 0.0)
     safe_root = np.where(root > 0.0, root, 1.0)
-    dbeta_dp = np.sqrt(K0) * 2.0 * (K + S) / safe_root * np.sign(p)
+    dbeta_dp = np.sqrt(K0) * 2.0 * (K + S) / safe_root * np.where(p < 0.0, -1.0, 1.0)
     dR_dp = -S * (2.0 * K0 * p + dbeta_dp) / (safe_den * safe_den)
-    dbeta_dS = np.sqrt(K) / safe_root
-    dR_dS = (den - S * (1.0 + dbeta_dS)) / (safe_den * safe_den)
+    # dR/dS = (den - S (1 + dbeta/dS)) / den^2, with beta - S dbeta/dS = sqrt(K)(K + S)/sqrt(K + 2S):
+    # written without the cancellation as K/S -> 0.
+    dR_dS = (K + np.sqrt(K) * (K + S) / safe_root) / (safe_den * safe_den)
     return R, dR_dp, dR_dS
 
 
@@ -168,6 +169,16 @@ def predict_readings(K, S, thickness, backgrounds, saunderson=None) -> np.ndarra
     return model.evaluate(p, r)[0]
 
 
+def _information(dK, dS):
+    """Entries of J^T J per wavelength (J = [dR/dK, dR/dS] over the measurements), its determinant, and
+    where it is singular (K and S cannot be told apart: an opaque film)."""
+    a11 = np.sum(dK * dK, axis=0)
+    a12 = np.sum(dK * dS, axis=0)
+    a22 = np.sum(dS * dS, axis=0)
+    det = a11 * a22 - a12 * a12
+    return a11, a22, det, ~(det > 1e-14 * a11 * a22)
+
+
 def standard_errors(K, S, thickness, backgrounds, readings, saunderson=None, sigma=None):
     """Gauss-Newton standard errors of K and S at each wavelength, and the sigma used.
 
@@ -185,11 +196,7 @@ def standard_errors(K, S, thickness, backgrounds, readings, saunderson=None, sig
             return None, None, None
         residuals = Rm - np.asarray(readings, dtype=np.float64)
         sigma = float(np.sqrt(np.sum(residuals * residuals) / (m * n - 2 * n)))
-    a11 = np.sum(dK * dK, axis=0)
-    a12 = np.sum(dK * dS, axis=0)
-    a22 = np.sum(dS * dS, axis=0)
-    det = a11 * a22 - a12 * a12
-    singular = ~(det > 1e-14 * a11 * a22)
+    a11, a22, det, singular = _information(dK, dS)
     safe_det = np.where(singular, 1.0, det)
     K_se = np.where(singular, np.inf, sigma * np.sqrt(np.abs(a22 / safe_det)))
     S_se = np.where(singular, np.inf, sigma * np.sqrt(np.abs(a11 / safe_det)))
@@ -345,7 +352,7 @@ def fit_joint(
     if sigma_used is None:  # two readings per wavelength: exactly determined
         K_se = S_se = np.full(n, np.inf)
         sigma_used, source = 0.0, "none (exactly determined)"
-    singular = ~np.isfinite(S_se)
+    singular = _information(*_jacobian_KS(model, p, r)[1:])[3]
     flags = np.zeros(n, dtype=np.uint8)
     at_bound = (K <= 1e-9 * (K + S)) | (S <= 1e-9 * (K + S))
     flags[at_bound] |= np.uint8(Flag.AT_BOUND)

@@ -15,11 +15,12 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
+from kmpipe.spectra import uniform_grid
 
 METHODS = ("two-constant", "black-white", "lsq")
 
 _LENGTH_UNITS_MM = {"nm": 1e-6, "um": 1e-3, "µm": 1e-3, "μm": 1e-3, "mm": 1.0}
-_LENGTH = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµμ]+)\s*$")
+_LENGTH = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµμ]+)\s*$")
 
 
 def parse_thickness_mm(text: str) -> float:
@@ -36,7 +37,8 @@ def parse_thickness_mm(text: str) -> float:
 
 
 def parse_grid(text: str) -> tuple[float, float, float]:
-    """'400:700:10' -> (400, 700, 10) in nm: start, stop (inclusive), step."""
+    """'400:700:10' -> (400, 700, 10) in nm: start, stop (inclusive), and a step that fits a whole number
+    of times between them."""
     parts = str(text).split(":")
     try:
         start, stop, step = (float(p) for p in parts)
@@ -44,6 +46,10 @@ def parse_grid(text: str) -> tuple[float, float, float]:
         raise ValueError(f"expected START:STOP:STEP in nm, like '400:700:10', got {text!r}") from None
     if not (step > 0.0 and start < stop):
         raise ValueError(f"grid needs START < STOP and STEP > 0, got {text!r}")
+    try:
+        uniform_grid(*parts)
+    except InputError as err:
+        raise ValueError(err.message) from None
     return start, stop, step
 
 
@@ -195,6 +201,20 @@ def _field_name(loc: tuple) -> str:
     return out
 
 
+def field_line(path: Path, field: str) -> int | None:
+    """Line of a field named like 'film[2].column' or 'white.file' in a manifest file, if it can be found."""
+    loc: list = []
+    for part in field.split("."):
+        name, _, index = part.partition("[")
+        loc.append(name)
+        if index:
+            loc.append(int(index.rstrip("]")) - 1)
+    try:
+        return _toml_line(Path(path).read_text(encoding="utf-8"), tuple(loc))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+
+
 def load_manifest(path: str | Path) -> Manifest:
     """Read and validate a sample manifest; InputError (file, line, field) on any problem."""
     path = Path(path)
@@ -214,7 +234,8 @@ def load_manifest(path: str | Path) -> Manifest:
     try:
         return Manifest.model_validate(data)
     except ValidationError as err:
-        first = err.errors()[0]
+        # A misspelt key shows up twice, as unknown and as missing: name the unknown one, it says more.
+        first = sorted(err.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
         loc = tuple(first["loc"])
         message = first["msg"]
         context = first.get("ctx", {}).get("error")

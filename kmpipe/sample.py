@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from kmpipe.errors import InputError
-from kmpipe.manifest import FitSettings, Manifest, load_manifest, parse_grid
+from kmpipe.manifest import FitSettings, Manifest, field_line, load_manifest, parse_grid
 from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
-from kmpipe.white import certified_reflectance, radiance_to_reflectance
+from kmpipe.white import ReadingSource, certified_reflectance, radiance_to_reflectance
 
 #: Reflectance above this after white normalization means the white reading or the units are wrong.
 MAX_REFLECTANCE = 1.5
@@ -93,6 +93,7 @@ class _Tables:
                 raise InputError(
                     f"names the file {ref.file!r}, which does not exist (looked for {path})",
                     path=self.manifest_path,
+                    line=field_line(self.manifest_path, field + ".file"),
                     field=field + ".file",
                 )
             table = read_spectra_csv(path)
@@ -115,19 +116,30 @@ class _Tables:
                 f"names column {ref.column!r} of {ref.file}, "
                 f"which has the columns: {', '.join(table.columns)}",
                 path=self.manifest_path,
+                line=field_line(self.manifest_path, field + ".column"),
                 field=field + ".column",
             )
         return table, path
 
 
-def _fitting_grid(settings: FitSettings, first: SpectralTable, override: str | None) -> np.ndarray | None:
+def _fitting_grid(settings: FitSettings, first: SpectralTable, override: str | None, manifest_path: Path):
+    """The grid to fit on (nm): --grid, else the manifest's [fit] grid, else the first file's grid."""
     text = override or settings.grid
     if first.wavelengths is None:
         return None
     if text is None:
         return np.asarray(first.wavelengths, dtype=np.float64)
-    start, stop, step = parse_grid(text)
-    return uniform_grid(start, stop, step)
+    where = (
+        {"field": "--grid"}
+        if override
+        else {"field": "fit.grid", "path": manifest_path, "line": field_line(manifest_path, "fit.grid")}
+    )
+    try:
+        return uniform_grid(*parse_grid(text))
+    except ValueError as err:
+        raise InputError(str(err), **where) from None
+    except InputError as err:
+        raise InputError(err.message, **where) from None
 
 
 def _on_grid(table: SpectralTable, grid: np.ndarray | None, channels) -> SpectralTable:
@@ -171,38 +183,36 @@ def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample
             refs.insert(1, ("white.dark", manifest.white.dark))
     loaded = [(field, ref, *tables.get(ref, field)) for field, ref in refs]
     first = loaded[0][2]
-    try:
-        fit_grid = _fitting_grid(manifest.fit, first, grid)
-    except ValueError as err:
-        raise InputError(
-            str(err), field="--grid" if grid else "fit.grid", path=None if grid else manifest_path
-        ) from None
+    fit_grid = _fitting_grid(manifest.fit, first, grid, manifest_path)
     on_grid = {path: _on_grid(table, fit_grid, first.channels) for _, _, table, path in loaded}
 
     def column(ref, path) -> np.ndarray:
         return np.asarray(on_grid[path].column(ref.column), dtype=np.float64)
 
+    labels = tuple(f"{w:g}" for w in fit_grid) if fit_grid is not None else ()
+
     def reflectance(ref, path) -> np.ndarray:
         values = column(ref, path)
         if manifest.white is not None:
-            values = radiance_to_reflectance(
-                values, white, certified, dark=dark, source=f"{path}:{ref.column}"
-            )
+            source = ReadingSource(path=path, white=white_name, samples=(ref.column,), labels=labels)
+            values = radiance_to_reflectance(values, white, certified, dark=dark, source=source)
         bad = np.flatnonzero(values > MAX_REFLECTANCE)
         if bad.size:
-            label = fit_grid[bad[0]] if fit_grid is not None else first.channels[bad[0]]
+            label = (
+                f"{fit_grid[bad[0]]:g} nm" if fit_grid is not None else f"channel {first.channels[bad[0]]}"
+            )
             raise InputError(
                 f"column {ref.column!r} has reflectance {values[bad[0]]:.4g} at {label}, "
-                f"above {MAX_REFLECTANCE}: "
-                "check the white reference and the units",
+                f"above {MAX_REFLECTANCE}: check the white reference and the units",
                 path=path,
             )
         return values
 
-    white = certified = dark = None
+    white = certified = dark = white_name = None
     if manifest.white is not None:
         white_path = next(path for field, _, _, path in loaded if field == "white")
         white = column(manifest.white, white_path)
+        white_name = f"{white_path}:{manifest.white.column}"
         if manifest.white.dark is not None:
             dark_path = next(path for field, _, _, path in loaded if field == "white.dark")
             dark = column(manifest.white.dark, dark_path)
@@ -219,6 +229,15 @@ def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample
             if err.path is None:
                 err.path, err.field = manifest_path, "white.certified"
             raise
+        # Check the white (and dark) reading on its own first, so that a refusal names the white's file.
+        white_source = ReadingSource(
+            path=white_path,
+            white=manifest.white.column,
+            samples=(manifest.white.column,),
+            dark=None if manifest.white.dark is None else manifest.white.dark.column,
+            labels=labels,
+        )
+        radiance_to_reflectance(white, white, certified, dark=dark, source=white_source)
 
     backings = {}
     measurements, readings = [], []
