@@ -94,24 +94,28 @@ def _opaque_lower_bound_sx(ks, R_g_dark, R_g_light, tolerance: float) -> np.ndar
 def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     """Run an inversion in cache-sized blocks: a lean regular path, then a careful one where it must.
 
-    ``regular(*arrays, tolerance)`` returns K, S, K/S and a mask of the elements it cannot do (flagged,
-    limiting or out-of-range ones); ``careful(*arrays, tolerance)`` returns K, S, K/S and flags for those.
+    The inputs are broadcast as views (a scalar backing or a per-wavelength array is never copied to
+    full size) and seen as rows of their last axis; blocks of about `_BLOCK` elements keep every
+    temporary in cache. ``regular(*blocks, tolerance, K, S, ks)`` fills the output blocks and returns
+    a mask of the elements it cannot do (flagged, limiting or out-of-range ones);
+    ``careful(*blocks, tolerance)`` returns K, S, K/S and flags for those.
     """
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
     shape = arrays[0].shape
-    flat = [a.ravel() for a in arrays]
-    size = flat[0].size
-    K, S, ks = np.empty(size), np.empty(size), np.empty(size)
-    flags = np.zeros(size, dtype=np.uint8)
-    for lo in range(0, size, _BLOCK):
-        block = slice(lo, lo + _BLOCK)
-        parts = [a[block] for a in flat]
-        K_b, S_b, ks_b, irregular = regular(*parts, tolerance)
+    last = shape[-1] if shape and shape[-1] > 0 else 1
+    rows = [a.reshape(-1, last) for a in arrays]
+    count = rows[0].shape[0]
+    K, S, ks = (np.empty((count, last)) for _ in range(3))
+    flags = np.zeros((count, last), dtype=np.uint8)
+    step = max(1, _BLOCK // last)
+    for lo in range(0, count, step):
+        block = slice(lo, lo + step)
+        parts = [r[block] for r in rows]
+        irregular = regular(*parts, tolerance, K[block], S[block], ks[block])
         if irregular.any():
-            K_b[irregular], S_b[irregular], ks_b[irregular], flags[block][irregular] = careful(
-                *(a[irregular] for a in parts), tolerance
+            K[block][irregular], S[block][irregular], ks[block][irregular], flags[block][irregular] = careful(
+                *(p[irregular] for p in parts), tolerance
             )
-        K[block], S[block], ks[block] = K_b, S_b, ks_b
     return Inversion(
         K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape)
     )
@@ -139,32 +143,32 @@ def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> In
     return _blockwise(_two_constant_regular, _two_constant_careful, (R_inf, R, R_g, X), tolerance)
 
 
-def _two_constant_regular(R_inf, R, R_g, X, tolerance):
-    """The common case of :func:`two_constant`: S X = log1p(delta) / (1/R_inf - R_inf).
+def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks):
+    """The common case of :func:`two_constant` into K, S, ks: S X = log1p(delta) / (1/R_inf - R_inf).
 
-    Elements that are flagged, out of range, or have delta < 1e-4 (where log1p(delta)/delta needs its
-    series) are marked irregular and redone by :func:`_two_constant_careful`.
+    Returns the mask of elements that are flagged, out of range, or have delta < 1e-4 (where
+    log1p(delta)/delta needs its series): :func:`_two_constant_careful` redoes those.
     """
     with np.errstate(all="ignore"):
-        two_b = 1.0 - R_inf
-        ks = two_b * two_b
-        ks /= 2.0 * R_inf
-        two_b *= 1.0 + R_inf
-        two_b /= R_inf
+        inverse = 1.0 / R_inf
+        two_b = inverse - R_inf  # (1 - R_inf)(1 + R_inf) / R_inf
+        np.subtract(1.0, R_inf, out=ks)
+        ks *= ks
+        ks *= 0.5 * inverse  # (1 - R_inf)^2 / (2 R_inf)
         delta = R - R_g
-        denominator = R_inf - R
-        denominator *= 1.0 / R_inf - R_g
-        delta /= denominator
+        inverse -= R_g
+        inverse *= R_inf - R
+        delta /= inverse
         delta *= two_b
-        irregular = ~(delta >= 1e-4) | ~(R_inf >= _MIN_REFLECTANCE) | ~(R_inf <= 1.0)
+        irregular = ~((delta >= 1e-4) & (R_inf >= _MIN_REFLECTANCE) & (R_inf <= 1.0))
         limit = tolerance * R_inf
         irregular |= np.abs(R_inf - R_g) <= limit
         irregular |= np.abs(R_inf - R) <= limit
-        S = np.log1p(delta)
+        np.log1p(delta, out=S)
+        two_b *= X
         S /= two_b
-        S /= X
-        K = S * ks
-    return K, S, ks, irregular
+        np.multiply(S, ks, out=K)
+    return irregular
 
 
 def _two_constant_careful(R_inf, R, R_g, X, tolerance):
@@ -237,42 +241,41 @@ def black_white(
     )
 
 
-def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance):
-    """The common case of :func:`black_white`, with few temporaries; also says which elements it cannot do.
+def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks):
+    """The common case of :func:`black_white` into K, S, ks, with few temporaries.
 
-    Returns K, S, K/S and a mask of the elements that are opaque, out of range, or so close to K = 0
-    that artanh(w)/w needs its series: those are redone by :func:`_black_white_careful`.
+    Returns the mask of elements that are opaque, out of range, near D = 0 (a clear absorber, where
+    rounding decides the sign of D) or so close to K = 0 that artanh(w)/w needs its series: those are
+    redone by :func:`_black_white_careful`. Values computed at those elements may be inf or nan.
     """
-    # Values at irregular elements may be inf or nan here: the careful path replaces every one of them.
     with np.errstate(all="ignore"):
         s_w = Rw + Gw
         d_b = Rb - Gb
         s_b = Rb + Gb
         d_w = Rw - Gw
+        D = s_w * d_b
+        first = np.abs(D)
+        D -= s_b * d_w
         c_b = (1.0 - Rb) * (1.0 - Gb)
         c_w = (1.0 - Rw) * (1.0 - Gw)
-        D = s_w * d_b
-        D -= s_b * d_w
-        # A clear absorber (S = 0) has D = 0 exactly; rounding leaves it a few ulps either side.
-        D[np.abs(D) <= 1e-13 * (np.abs(s_w * d_b) + np.abs(s_b * d_w))] = 0.0
-        Nu = c_w * d_b
-        Nu -= c_b * d_w
+        np.multiply(c_w, d_b, out=K)
+        K -= c_b * d_w  # N_u
         Ny = s_w * c_b
         Ny -= s_b * c_w
-        w = Nu + 2.0 * D
-        w *= Nu
-        np.sqrt(w, out=w)
-        w /= Ny
-        irregular = ~(w >= 1e-3) | ~(w < 1.0) | ~(D > 0.0) | (Nu < 0.0)
+        b_num = 2.0 * D
+        b_num += K
+        b_num *= K
+        np.sqrt(b_num, out=b_num)  # b |D|
+        w = b_num / Ny
+        irregular = ~((w >= 1e-3) & (w < 1.0) & (D > 1e-12 * first) & (K >= 0.0))
         irregular |= np.abs(Rw - Rb) <= tolerance * Rw
         factor = np.arctanh(w)
-        factor /= w
-        factor /= Ny
-        factor /= X
-        K = Nu * factor
-        S = D * factor
-        ks = np.minimum(Nu / D, _MAX_KS)
-    return K, S, ks, irregular
+        b_num *= X
+        factor /= b_num  # artanh(w) / (w N_y X)
+        np.divide(K, D, out=ks)
+        K *= factor
+        np.multiply(D, factor, out=S)
+    return irregular
 
 
 def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
