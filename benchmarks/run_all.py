@@ -1,0 +1,117 @@
+"""Run every kmpipe benchmark, print the tables, and write them as Markdown to docs/benchmarks.md.
+
+Usage (from the repository root): ``.venv/bin/python benchmarks/run_all.py``. Takes a few minutes and up to
+about 7 GB of memory (the closed-form inversion works on 100,000 x 401 arrays). Benchmarks report speed and
+accuracy; they do not pass or fail (speed is never part of the tests).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import bench_fit
+import bench_fit_grid
+import bench_inversion
+import numpy as np
+from common import REPO, Table, machine
+
+COMMAND = ".venv/bin/python benchmarks/run_all.py"
+
+
+def _summary(inversion: dict, fit: dict) -> Table:
+    rows = []
+    for t in inversion["timings"]:
+        if t.data != "noisy":
+            continue
+        rows.append([f"{t.method}: time / log1p floor", "<= 10", f"{t.floor_ratio:.1f}",
+                     "yes" if t.floor_ratio <= bench_inversion.FLOOR_TARGET else "no"])
+        rows.append([f"{t.method}: speed-up over a Python loop", ">= 100", f"{t.loop_ratio:.0f}",
+                     "yes" if t.loop_ratio >= bench_inversion.LOOP_TARGET else "no"])
+    for v in fit["variants"]:
+        median_ms = float(np.median(v.times_ms))
+        rows.append([f"joint fit ({v.name}): ms per sample", "<= 50", f"{median_ms:.1f}",
+                     "yes" if median_ms <= bench_fit.TARGET_MS else "no"])
+    return Table("Targets (noisy readings)", ["quantity", "target", "measured", "met"], rows, [])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--spectra", type=int, default=bench_inversion.N_SPECTRA,
+                        help="spectra in the inversion benchmark (default %(default)s)")
+    parser.add_argument("--samples", type=int, default=bench_fit.N_SAMPLES,
+                        help="samples in the joint fit benchmark (default %(default)s)")
+    parser.add_argument("--grid-samples", type=int, default=bench_fit_grid.N_SAMPLES,
+                        help="samples in the wavelength grid benchmark (default %(default)s)")
+    parser.add_argument("--output", type=Path, default=REPO / "docs" / "benchmarks.md")
+    arguments = parser.parse_args()
+
+    started = time.perf_counter()
+    info = machine()
+    if os.getloadavg()[0] > 0.5:
+        print(f"note: 1-minute load average {os.getloadavg()[0]:.2f} at start; other work running now "
+              "slows the timings (the numbers assume an idle machine)", file=sys.stderr)
+    parts: list[tuple[str, list[Table], float]] = []
+
+    print("closed-form inversions ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    inversion = bench_inversion.run(arguments.spectra)
+    parts.append(("Closed-form inversion", bench_inversion.tables(inversion), time.perf_counter() - clock))
+
+    print("joint fit ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    fit = bench_fit.run(arguments.samples)
+    parts.append(("Joint fit", bench_fit.tables(fit), time.perf_counter() - clock))
+
+    print("wavelength grid ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    grid = bench_fit_grid.run(arguments.grid_samples)
+    parts.append(("Wavelength grid of the fit", bench_fit_grid.tables(grid), time.perf_counter() - clock))
+    total = time.perf_counter() - started
+
+    summary = _summary(inversion, fit)
+    summary.print()
+    for _, tables, _ in parts:
+        for table in tables:
+            table.print()
+    print(f"total {total:.0f} s", file=sys.stderr)
+
+    lines = [
+        "# Benchmarks",
+        "",
+        "Speed and accuracy of kmpipe's closed-form inversions and joint K, S fit, on simulated drawdowns",
+        "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
+        "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",
+        "do not edit by hand; rerun it. Benchmarks measure, they do not pass or fail; speed never goes into",
+        "the tests.",
+        "",
+        "Reproduce (from the repository root):",
+        "",
+        "```",
+        COMMAND,
+        "```",
+        "",
+        "## Machine",
+        "",
+        "| | |",
+        "|---|---|",
+        *(f"| {key} | {value} |" for key, value in info.items()),
+        f"| run time | {total:.0f} s |",
+        "",
+        summary.markdown(),
+    ]
+    for title, tables, seconds in parts:
+        lines += [f"## {title}", "", f"({seconds:.0f} s)", ""]
+        lines += [table.markdown() for table in tables]
+    arguments.output.parent.mkdir(parents=True, exist_ok=True)
+    temporary = arguments.output.with_suffix(".md.tmp")
+    temporary.write_text("\n".join(lines).rstrip("\n") + "\n")
+    os.replace(temporary, arguments.output)
+    print(f"wrote {arguments.output}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
