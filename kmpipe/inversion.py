@@ -92,13 +92,13 @@ def _opaque_lower_bound_sx(ks, R_g_dark, R_g_light, tolerance: float) -> np.ndar
 
 
 def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
-    """Run an inversion in cache-sized blocks: a lean regular path, then a careful one where it must.
+    """Run an inversion in cache-sized blocks on a lean regular path, then on a careful one where needed.
 
     The inputs are broadcast as views (a scalar backing or a per-wavelength array is never copied to
     full size) and seen as rows of their last axis; blocks of about `_BLOCK` elements keep every
     temporary in cache. ``regular(*blocks, tolerance, K, S, ks)`` fills the output blocks and returns
-    a mask of the elements it cannot do (flagged, limiting or out-of-range ones);
-    ``careful(*blocks, tolerance)`` returns K, S, K/S and flags for those.
+    a mask of the elements it cannot do (flagged, limiting or out-of-range ones); after all blocks,
+    ``careful(*values, tolerance)`` returns K, S, K/S and flags for those, in one call.
     """
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
     shape = arrays[0].shape
@@ -107,15 +107,15 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     count = rows[0].shape[0]
     K, S, ks = (np.empty((count, last)) for _ in range(3))
     flags = np.zeros((count, last), dtype=np.uint8)
+    hard = np.empty((count, last), dtype=bool)
     step = max(1, _BLOCK // last)
+
     for lo in range(0, count, step):
         block = slice(lo, lo + step)
-        parts = [r[block] for r in rows]
-        irregular = regular(*parts, tolerance, K[block], S[block], ks[block])
-        if irregular.any():
-            K[block][irregular], S[block][irregular], ks[block][irregular], flags[block][irregular] = careful(
-                *(p[irregular] for p in parts), tolerance
-            )
+        hard[block] = regular(*(r[block] for r in rows), tolerance, K[block], S[block], ks[block])
+    where = np.nonzero(hard)
+    if where[0].size:
+        K[where], S[where], ks[where], flags[where] = careful(*(r[where] for r in rows), tolerance)
     return Inversion(
         K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape)
     )
@@ -244,9 +244,10 @@ def black_white(
 def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks):
     """The common case of :func:`black_white` into K, S, ks, with few temporaries.
 
-    Returns the mask of elements that are opaque, out of range, near D = 0 (a clear absorber, where
-    rounding decides the sign of D) or so close to K = 0 that artanh(w)/w needs its series: those are
-    redone by :func:`_black_white_careful`. Values computed at those elements may be inf or nan.
+    K/S slightly below 0 (by at most ``tolerance``: noise on a nearly non-absorbing film) is taken as
+    K = 0. Returns the mask of elements that are opaque, out of range, or near D = 0 (a clear absorber,
+    where rounding decides the sign of D): those are redone by :func:`_black_white_careful`. Values
+    computed at those elements may be inf or nan.
     """
     with np.errstate(all="ignore"):
         s_w = Rw + Gw
@@ -262,19 +263,28 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks):
         K -= c_b * d_w  # N_u
         Ny = s_w * c_b
         Ny -= s_b * c_w
+        irregular = ~((K >= -tolerance * D) & (D > 1e-12 * first))
+        np.maximum(K, 0.0, out=K)
         b_num = 2.0 * D
         b_num += K
         b_num *= K
         np.sqrt(b_num, out=b_num)  # b |D|
         w = b_num / Ny
-        irregular = ~((w >= 1e-3) & (w < 1.0) & (D > 1e-12 * first) & (K >= 0.0))
+        irregular |= ~((w >= 0.0) & (w < 1.0))
         irregular |= np.abs(Rw - Rb) <= tolerance * Rw
         factor = np.arctanh(w)
-        b_num *= X
-        factor /= b_num  # artanh(w) / (w N_y X)
+        factor /= w  # artanh(w) / w, nan at w = 0: mended below
+        small = w < 1e-3
+        if small.any():
+            w_small = w[small]
+            factor[small] = 1.0 + w_small * w_small / 3.0
+        factor /= X
         np.divide(K, D, out=ks)
+        np.minimum(ks, _MAX_KS, out=ks)
+        K /= Ny
         K *= factor
-        np.multiply(D, factor, out=S)
+        np.divide(D, Ny, out=S)
+        S *= factor
     return irregular
 
 
@@ -285,10 +295,10 @@ def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
     Nu = (1.0 - Rw) * (1.0 - Gw) * (Rb - Gb) - (1.0 - Rb) * (1.0 - Gb) * (Rw - Gw)
     Ny = (Rw + Gw) * (1.0 - Rb) * (1.0 - Gb) - (Rb + Gb) * (1.0 - Rw) * (1.0 - Gw)
 
-    # Rounding leaves N_u a few ulps below 0 for a non-absorbing film: only a clearly negative K/S is
-    # out of range.
+    # Noise (or rounding) leaves N_u a little below 0 for a nearly non-absorbing film: K/S down to
+    # -tolerance is taken as K = 0; only a clearly negative K/S is out of range.
     scale = (1.0 - Rw) * (1.0 - Gw) * np.abs(Rb - Gb) + (1.0 - Rb) * (1.0 - Gb) * np.abs(Rw - Gw)
-    negative_k = Nu < -1e-12 * scale
+    negative_k = Nu < -np.maximum(tolerance * D, 1e-12 * scale)
     Nu = np.maximum(Nu, 0.0)
     b_num = np.sqrt(Nu * np.maximum(Nu + 2.0 * D, 0.0))  # b * |D|
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -334,5 +344,4 @@ def curtis(R_over_black, R_over_white, X=1.0, *, tolerance: float = OPAQUE_TOLER
     with G_b = 0, G_w = 1 (D = 2 R_b, N_u = (1 - R_b)(1 - R_w), N_y = (1 + R_w)(1 - R_b)), keeping full
     precision as R_b -> 0 where the textbook form loses ~9 digits at R_b ~ 1e-9.
     """
-    Rb = np.asarray(R_over_black, dtype=np.float64)
-    return black_white(Rb, R_over_white, np.zeros_like(Rb), np.ones_like(Rb), X, tolerance=tolerance)
+    return black_white(R_over_black, R_over_white, 0.0, 1.0, X, tolerance=tolerance)
