@@ -439,6 +439,21 @@ def test_grid_option_fits_on_that_grid(tmp_path, capsys, foundation):
     assert np.max(rel_err(material.S, S[keep])) < 1e-9
 
 
+def test_default_grid_is_5_nm_for_finer_data_and_the_data_grid_otherwise(tmp_path, capsys, foundation):
+    table_grid, K10, S10 = foundation
+    fine = uniform_grid(382, 748, 1)  # 1 nm data whose ends are not multiples of 5 nm
+    K, S = np.interp(fine, table_grid, K10), np.interp(fine, table_grid, S10)
+    out = tmp_path / "fine.json"
+    assert run_fit(capsys, str(write_sample(tmp_path / "fine", fine, K, S)), "-o", str(out))[0] == 0
+    material = read_material(out)
+    assert np.array_equal(material.wavelengths, uniform_grid(385, 745, 5))
+    keep = np.isin(fine, material.wavelengths)
+    assert np.max(rel_err(material.K, K[keep])) < 1e-9
+    out = tmp_path / "coarse.json"
+    assert run_fit(capsys, str(write_sample(tmp_path / "coarse", table_grid, K10, S10)), "-o", str(out))[0] == 0
+    assert np.array_equal(read_material(out).wavelengths, table_grid)
+
+
 def test_grid_in_the_manifest_fits_on_that_grid(tmp_path, capsys, foundation):
     wavelengths, K, S = foundation
     manifest = write_sample(tmp_path / "s", wavelengths, K, S, fit_table='[fit]\ngrid = "450:650:20"\n')
