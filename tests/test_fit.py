@@ -450,7 +450,8 @@ def test_default_grid_is_5_nm_for_finer_data_and_the_data_grid_otherwise(tmp_pat
     keep = np.isin(fine, material.wavelengths)
     assert np.max(rel_err(material.K, K[keep])) < 1e-9
     out = tmp_path / "coarse.json"
-    assert run_fit(capsys, str(write_sample(tmp_path / "coarse", table_grid, K10, S10)), "-o", str(out))[0] == 0
+    coarse = write_sample(tmp_path / "coarse", table_grid, K10, S10)
+    assert run_fit(capsys, str(coarse), "-o", str(out))[0] == 0
     assert np.array_equal(read_material(out).wavelengths, table_grid)
 
 
