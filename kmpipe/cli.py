@@ -43,9 +43,7 @@ def _noise_arg(text: str) -> float:
     except ValueError:
         value = float("nan")
     if not 0.0 < value < 0.5:
-        raise argparse.ArgumentTypeError(
-            f"expected a standard deviation of reflectance in (0, 0.5), got {text!r}"
-        )
+        raise argparse.ArgumentTypeError(f"expected a standard deviation of reflectance in (0, 0.5), got {text!r}")
     return value
 
 
@@ -71,9 +69,7 @@ def _refuse_overwriting_inputs(output: Path, inputs) -> None:
     resolved = output.resolve()
     for path in inputs:
         if Path(path).resolve() == resolved:
-            raise InputError(
-                "is one of the inputs; kmpipe never overwrites its inputs", path=output, field="-o"
-            )
+            raise InputError("is one of the inputs; kmpipe never overwrites its inputs", path=output, field="-o")
 
 
 def _summary_table(materials: list[tuple[Path, object]]) -> Table:
@@ -94,17 +90,12 @@ def _summary_table(materials: list[tuple[Path, object]]) -> Table:
         ks = material.ks_ratio
         cells = []
         for label in labels:
-            if spectral:
-                i = int(np.argmin(np.abs(material.wavelengths - label)))
-            else:
-                i = material.channels.index(label)
+            i = int(np.argmin(np.abs(material.wavelengths - label))) if spectral else material.channels.index(label)
             cells.append(f"{ks[i]:.3g}")
         j = int(np.argmin(np.abs(material.wavelengths - 550.0))) if spectral else 1
         worst = max(m.rmse for m in material.measurements)
         counts = [
-            f"{f.name.lower()} x{int(np.count_nonzero(material.flags & f))}"
-            for f in Flag
-            if np.any(material.flags & f)
+            f"{f.name.lower()} x{int(np.count_nonzero(material.flags & f))}" for f in Flag if np.any(material.flags & f)
         ]
         table.add_row(
             material.name,
@@ -125,8 +116,7 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
     to_folder = len(args.manifest) > 1 or args.output.is_dir()
     if to_folder and args.output.exists() and not args.output.is_dir():
         raise InputError(
-            "is a file; with several manifests, -o must name a folder "
-            "(one SAMPLE.json is written there per sample)",
+            "is a file; with several manifests, -o must name a folder (one SAMPLE.json is written there per sample)",
             path=args.output,
             field="-o",
         )
@@ -198,9 +188,7 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
     _refuse_overwriting_inputs(args.output, [args.radiance, column_ref(args.white, "--white")[0]])
     values = np.array(
         [
-            radiance_to_reflectance(
-                table.column(c), white, certified, dark=dark, source=f"{args.radiance}:{c}"
-            )
+            radiance_to_reflectance(table.column(c), white, certified, dark=dark, source=f"{args.radiance}:{c}")
             for c in table.columns
         ]
     )
@@ -212,14 +200,98 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
     )
     if args.dark:
         metadata["dark_reading"] = args.dark
-    out = SpectralTable(
-        wavelengths=grid, channels=None, columns=table.columns, values=values, metadata=metadata
-    )
+    out = SpectralTable(wavelengths=grid, channels=None, columns=table.columns, values=values, metadata=metadata)
     write_spectra_csv(out, args.output)
-    console.print(
-        f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}"
-    )
+    console.print(f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}")
     return EXIT_OK
+
+
+def _material_files(target: Path) -> list[Path]:
+    """MATERIAL.json itself, or every material JSON directly inside a folder."""
+    from kmpipe.material import FORMAT
+
+    if target.is_dir():
+        found = []
+        for path in sorted(target.glob("*.json")):
+            try:
+                head = path.read_text(encoding="utf-8")[:4096]
+            except (OSError, UnicodeDecodeError):
+                continue
+            if f'"{FORMAT}"' in head:
+                found.append(path)
+        if not found:
+            raise InputError(f'holds no kmpipe material files (*.json with "format": "{FORMAT}")', path=target)
+        return found
+    if not target.exists():
+        raise InputError("does not exist", path=target)
+    return [target]
+
+
+def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.report import write_index, write_sample_report
+    from kmpipe.validation import Thresholds, validate_material
+
+    materials = _material_files(args.material)
+    if args.manifest is not None and len(materials) > 1:
+        raise InputError("--manifest names one sample's manifest; give one MATERIAL.json with it", field="--manifest")
+    thresholds = Thresholds.from_toml(args.config) if args.config else Thresholds()
+    thresholds = thresholds.updated(
+        delta_e_warn=args.delta_e_warn,
+        delta_e_fail=args.delta_e_fail,
+        rmse_warn=args.rmse_warn,
+        rmse_fail=args.rmse_fail,
+    )
+    illuminants = tuple(name.strip() for name in args.illuminant.split(",") if name.strip())
+    if not illuminants:
+        raise InputError("expected one or more illuminant names, e.g. D65,A", field="--illuminant")
+    base = args.material if args.material.is_dir() else args.material.parent
+    out_dir = args.output or base / "reports"
+    entries = []
+    for path in materials:
+        report = validate_material(
+            path,
+            manifest=args.manifest,
+            illuminants=illuminants,
+            observer=args.observer,
+            thresholds=thresholds,
+        )
+        folder = out_dir / report.material.name if len(materials) > 1 or args.output is None else out_dir
+        entries.append((report, write_sample_report(report, folder)))
+
+    table = Table(title="Validation", title_justify="left")
+    for column, justify in (
+        ("sample", "left"),
+        ("verdict", "left"),
+        ("worst ΔE00", "right"),
+        ("reasons", "left"),
+    ):
+        table.add_column(column, justify=justify)
+    colours = {"pass": "green", "warn": "yellow", "fail": "red"}
+    for report, _ in entries:
+        worst = report.worst_delta_e
+        table.add_row(
+            report.material.name,
+            f"[{colours[report.verdict]}]{report.verdict}[/]",
+            "n/a" if worst is None else f"{worst:.2f}",
+            escape(", ".join(report.reasons)) or "none",
+        )
+    console.print(table)
+    if len(entries) > 1:
+        index = write_index(entries, out_dir)
+        console.print(f"index of {len(entries)} reports: {index}", highlight=False)
+    else:
+        console.print(f"report: {entries[0][1]}", highlight=False)
+    return EXIT_CHECK_FAILED if any(report.verdict == "fail" for report, _ in entries) else EXIT_OK
+
+
+def _positive_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -239,9 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
         "manifest (TOML; see docs/formats.md) and write MATERIAL.json.",
     )
     fit.add_argument("manifest", nargs="+", type=Path, help="sample manifest(s), TOML")
-    fit.add_argument(
-        "-o", "--output", type=Path, required=True, help="MATERIAL.json, or a folder for several samples"
-    )
+    fit.add_argument("-o", "--output", type=Path, required=True, help="MATERIAL.json, or a folder for several samples")
     fit.add_argument("--method", choices=METHODS, help="inversion method (default: the manifest's, else lsq)")
     fit.add_argument(
         "--saunderson", type=_saunderson_arg, metavar="K1,K2", help="model surface reflection, e.g. 0.04,0.6"
@@ -254,9 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_smoothness_arg,
         help="lsq: second-difference penalty across wavelength (e.g. 1e-6)",
     )
-    fit.add_argument(
-        "--noise", type=_noise_arg, help="noise standard deviation of the readings, for standard errors"
-    )
+    fit.add_argument("--noise", type=_noise_arg, help="noise standard deviation of the readings, for standard errors")
     fit.set_defaults(run=_cmd_fit)
 
     ingest = commands.add_parser(
@@ -265,9 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="R = (L - L_dark) / (L_white - L_dark) x certified reflectance of the white standard.",
     )
     ingest.add_argument("radiance", type=Path, help="spectral CSV holding radiance")
-    ingest.add_argument(
-        "--white", required=True, metavar="FILE:COLUMN", help="radiance of the white standard"
-    )
+    ingest.add_argument("--white", required=True, metavar="FILE:COLUMN", help="radiance of the white standard")
     ingest.add_argument(
         "--certified",
         default="builtin:baso4",
@@ -275,11 +341,33 @@ def build_parser() -> argparse.ArgumentParser:
         help="builtin:baso4 (default) or FILE[:COLUMN]",
     )
     ingest.add_argument("--dark", metavar="FILE:COLUMN", help="dark reading to subtract")
-    ingest.add_argument(
-        "--grid", type=_grid_arg, metavar="START:STOP:STEP", help="resample onto this grid (nm)"
-    )
+    ingest.add_argument("--grid", type=_grid_arg, metavar="START:STOP:STEP", help="resample onto this grid (nm)")
     ingest.add_argument("-o", "--output", type=Path, required=True, help="reflectance CSV to write")
     ingest.set_defaults(run=_cmd_ingest)
+
+    validate = commands.add_parser(
+        "validate",
+        help="check fitted materials against their measurements and write reports",
+        description="Predict every measurement from K and S, report residuals and Delta E 2000, run the checks "
+        "(docs/formats.md lists them) and give a verdict per sample. Exit status 0 when every sample passes or "
+        "warns, 1 when one fails, 2 on bad input.",
+    )
+    validate.add_argument("material", type=Path, help="MATERIAL.json, or a folder of them (a product line)")
+    validate.add_argument("--manifest", type=Path, help="the sample manifest (default: the one in the provenance)")
+    validate.add_argument("--illuminant", default="D65", metavar="LIST", help="e.g. D65,D55,A,F11 (default D65)")
+    validate.add_argument("--observer", choices=("2", "10"), default="2", help="CIE 1931 2 deg or 1964 10 deg")
+    validate.add_argument(
+        "-o", "--output", type=Path, help="report folder (default: reports/SAMPLE/ beside the material)"
+    )
+    validate.add_argument("--config", type=Path, help="TOML file with a [thresholds] table")
+    for name, what in (
+        ("--delta-e-warn", "Delta E 2000 above which a measurement warns (default 1)"),
+        ("--delta-e-fail", "Delta E 2000 above which a measurement fails (default 2)"),
+        ("--rmse-warn", "spectral RMSE above which a measurement warns (default 0.01)"),
+        ("--rmse-fail", "spectral RMSE above which a measurement fails (default 0.02)"),
+    ):
+        validate.add_argument(name, type=_positive_arg, metavar="X", help=what)
+    validate.set_defaults(run=_cmd_validate)
     return parser
 
 
@@ -293,14 +381,10 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         if args.debug:
             raise
-        errors.print(
-            f"[bold red]kmpipe {args.command}: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True
-        )
+        errors.print(f"[bold red]kmpipe {args.command}: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        errors.print(
-            "kmpipe: interrupted; files already written are complete, nothing half-written was left."
-        )
+        errors.print("kmpipe: interrupted; files already written are complete, nothing half-written was left.")
         return 130
     except Exception as err:  # a bug, not bad input
         if args.debug:

@@ -159,9 +159,7 @@ def fit_sample(
             smoothness=smoothness,
         )
     else:
-        raise InputError(
-            f"unknown method {method!r}; expected one of two-constant, black-white, lsq", field="--method"
-        )
+        raise InputError(f"unknown method {method!r}; expected one of two-constant, black-white, lsq", field="--method")
 
     predicted = predict_readings(K, S, thickness, G_km, saunderson)
     residuals = predicted - sample.readings

@@ -29,8 +29,7 @@ class Flag(enum.IntFlag):
 
 #: One line per flag, for reports and error messages.
 EXPLANATIONS = {
-    Flag.OPAQUE: "the film hides its backing here: K/S is exact, K and S are lower bounds "
-    "(thickness not identifiable)",
+    Flag.OPAQUE: "the film hides its backing here: K/S is exact, K and S are lower bounds (thickness not identifiable)",
     Flag.OUT_OF_RANGE: "readings outside what the model and backgrounds allow: "
     "K and S were moved to the nearest physical values",
     Flag.NO_CONTRAST: "background as bright as the masstone: S cannot be found from this pair",

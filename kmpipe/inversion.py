@@ -116,9 +116,7 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     where = np.nonzero(hard)
     if where[0].size:
         K[where], S[where], ks[where], flags[where] = careful(*(r[where] for r in rows), tolerance)
-    return Inversion(
-        K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape)
-    )
+    return Inversion(K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape))
 
 
 def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
@@ -204,9 +202,7 @@ def _two_constant_careful(R_inf, R, R_g, X, tolerance):
     return S * ks, S, ks, flags
 
 
-def black_white(
-    R_over_black, R_over_white, R_black, R_white, X, *, tolerance: float = OPAQUE_TOLERANCE
-) -> Inversion:
+def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
     """K and S from one film thickness X drawn over two backings of measured reflectance.
 
     With y = b coth(b S X), a film over background R_g,i that reads R_i satisfies

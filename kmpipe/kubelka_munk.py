@@ -168,9 +168,7 @@ def hiding_thickness(K, S, R_black, R_white, contrast_ratio: float = 0.98) -> np
     """
     if not 0.0 < contrast_ratio < 1.0:
         raise ValueError(f"contrast_ratio must lie in (0, 1), got {contrast_ratio}")
-    K, S, R_black, R_white = np.broadcast_arrays(
-        *(np.asarray(v, dtype=np.float64) for v in (K, S, R_black, R_white))
-    )
+    K, S, R_black, R_white = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (K, S, R_black, R_white)))
 
     def contrast(X):
         R0, T = film_reflectance_transmittance(K, S, X)

@@ -80,7 +80,20 @@ class Backing(ColumnRef):
 
 
 class Masstone(ColumnRef):
-    pass
+    """An opaque layer of the sample; ``thickness`` (optional) lets validation check that it is opaque."""
+
+    thickness: str | None = None
+
+    @field_validator("thickness")
+    @classmethod
+    def _thickness(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_thickness_mm(value)
+        return value
+
+    @property
+    def thickness_mm(self) -> float | None:
+        return None if self.thickness is None else parse_thickness_mm(self.thickness)
 
 
 class Film(ColumnRef):
@@ -138,9 +151,7 @@ class Manifest(_Strict):
         for i, film in enumerate(self.film):
             if film.over not in names:
                 known = ", ".join(repr(n) for n in names) or "none is defined"
-                raise _LocatedError(
-                    ("film", i, "over"), f"names backing {film.over!r}, but the backings are: {known}"
-                )
+                raise _LocatedError(("film", i, "over"), f"names backing {film.over!r}, but the backings are: {known}")
         return self
 
 
@@ -228,9 +239,7 @@ def load_manifest(path: str | Path) -> Manifest:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         match = re.search(r"line (\d+)", str(err))
-        raise InputError(
-            f"not valid TOML: {err}", path=path, line=int(match.group(1)) if match else None
-        ) from None
+        raise InputError(f"not valid TOML: {err}", path=path, line=int(match.group(1)) if match else None) from None
     try:
         return Manifest.model_validate(data)
     except ValidationError as err:
@@ -248,6 +257,4 @@ def load_manifest(path: str | Path) -> Manifest:
         message = message.removeprefix("Value error, ")
         more = len(err.errors()) - 1
         suffix = f" ({more} more problem{'s' if more > 1 else ''} after this one)" if more else ""
-        raise InputError(
-            message + suffix, path=path, line=_toml_line(text, loc), field=_field_name(loc)
-        ) from None
+        raise InputError(message + suffix, path=path, line=_toml_line(text, loc), field=_field_name(loc)) from None

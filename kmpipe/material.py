@@ -84,9 +84,7 @@ def _array(values, what: str, path: Path, n: int, *, allow_null: bool = False) -
     try:
         return out.astype(np.float64)
     except (TypeError, ValueError):
-        raise InputError(
-            "expected numbers" + (" or null" if allow_null else ""), path=path, field=what
-        ) from None
+        raise InputError("expected numbers" + (" or null" if allow_null else ""), path=path, field=what) from None
 
 
 def material_to_dict(material: Material) -> dict:
@@ -191,12 +189,8 @@ def read_material(path: str | Path) -> Material:
             channels=None if channels is None else tuple(channels),
             K=_array(doc["K"], "K", path, n),
             S=_array(doc["S"], "S", path, n),
-            K_stderr=None
-            if doc["K_stderr"] is None
-            else _array(doc["K_stderr"], "K_stderr", path, n, allow_null=True),
-            S_stderr=None
-            if doc["S_stderr"] is None
-            else _array(doc["S_stderr"], "S_stderr", path, n, allow_null=True),
+            K_stderr=None if doc["K_stderr"] is None else _array(doc["K_stderr"], "K_stderr", path, n, allow_null=True),
+            S_stderr=None if doc["S_stderr"] is None else _array(doc["S_stderr"], "S_stderr", path, n, allow_null=True),
             flags=flags,
             method=doc["method"],
             saunderson=None if saunderson is None else (float(saunderson["k1"]), float(saunderson["k2"])),

@@ -35,7 +35,8 @@ class Measurement:
     file: Path
     column: str
     over: str | None
-    thickness_mm: float  # inf for a masstone
+    thickness_mm: float  # inf for a masstone (the fit treats it as opaque)
+    declared_mm: float | None = None  # a masstone's thickness as drawn, if the manifest gives it
 
 
 @dataclass(frozen=True)
@@ -102,11 +103,7 @@ class _Tables:
                 )
             table = read_spectra_csv(path)
             if table.quantity != self.quantity:
-                why = (
-                    "the manifest has a [white] reference"
-                    if self.quantity == "radiance"
-                    else "there is no [white]"
-                )
+                why = "the manifest has a [white] reference" if self.quantity == "radiance" else "there is no [white]"
                 raise InputError(
                     f"holds {table.quantity}, but {why}, so it must hold {self.quantity} "
                     f"(set '# quantity: {self.quantity}' or change the manifest)",
@@ -117,8 +114,7 @@ class _Tables:
         table = self.cache[path]
         if ref.column not in table.columns:
             raise InputError(
-                f"names column {ref.column!r} of {ref.file}, "
-                f"which has the columns: {', '.join(table.columns)}",
+                f"names column {ref.column!r} of {ref.file}, which has the columns: {', '.join(table.columns)}",
                 path=self.manifest_path,
                 line=field_line(self.manifest_path, field + ".column"),
                 field=field + ".column",
@@ -129,9 +125,11 @@ class _Tables:
 def _fitting_grid(settings: FitSettings, first: SpectralTable, override: str | None, manifest_path: Path):
     """The grid to fit on (nm): --grid, else the manifest's [fit] grid, else `DEFAULT_STEP_NM` steps over the
     first file's range (its own grid when that is already as coarse)."""
-    text = override or settings.grid
     if first.wavelengths is None:
         return None
+    if isinstance(override, np.ndarray):
+        return np.asarray(override, dtype=np.float64)
+    text = override or settings.grid
     if text is None:
         own = np.asarray(first.wavelengths, dtype=np.float64)
         start = np.ceil(own[0] / DEFAULT_STEP_NM) * DEFAULT_STEP_NM
@@ -166,7 +164,7 @@ def _on_grid(table: SpectralTable, grid: np.ndarray | None, channels) -> Spectra
     return resample(table, grid)
 
 
-def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample:
+def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = None) -> Sample:
     """Load a sample manifest and everything it names, as reflectance on one grid.
 
     Parameters
@@ -174,8 +172,8 @@ def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample
     manifest_path
         The TOML manifest; file names inside it are relative to its folder.
     grid
-        'START:STOP:STEP' in nm to fit on, overriding the manifest's ``[fit] grid``; default: the grid of
-        the first file the manifest names.
+        'START:STOP:STEP' in nm, or the wavelengths themselves (nm), overriding the manifest's ``[fit]
+        grid``; default: see :func:`_fitting_grid`.
     """
     manifest_path = Path(manifest_path)
     manifest: Manifest = load_manifest(manifest_path)
@@ -208,9 +206,7 @@ def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample
             values = radiance_to_reflectance(values, white, certified, dark=dark, source=source)
         bad = np.flatnonzero(values > MAX_REFLECTANCE)
         if bad.size:
-            label = (
-                f"{fit_grid[bad[0]]:g} nm" if fit_grid is not None else f"channel {first.channels[bad[0]]}"
-            )
+            label = f"{fit_grid[bad[0]]:g} nm" if fit_grid is not None else f"channel {first.channels[bad[0]]}"
             raise InputError(
                 f"column {ref.column!r} has reflectance {values[bad[0]]:.4g} at {label}, "
                 f"above {MAX_REFLECTANCE}: check the white reference and the units",
@@ -264,6 +260,7 @@ def load_sample(manifest_path: str | Path, *, grid: str | None = None) -> Sample
                     column=ref.column,
                     over=ref.over if is_film else None,
                     thickness_mm=ref.thickness_mm if is_film else float("inf"),
+                    declared_mm=None if is_film else ref.thickness_mm,
                 )
             )
             readings.append(reflectance(ref, path))

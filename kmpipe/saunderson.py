@@ -32,6 +32,4 @@ def saunderson_slope(R, k1: float, k2: float) -> np.ndarray:
 def check_constants(k1: float, k2: float) -> None:
     """Refuse constants that make the correction meaningless: 0 <= k1 < 1, 0 <= k2 < 1."""
     if not (0.0 <= k1 < 1.0 and 0.0 <= k2 < 1.0):
-        raise ValueError(
-            f"Saunderson constants must satisfy 0 <= k1 < 1 and 0 <= k2 < 1, got k1={k1}, k2={k2}"
-        )
+        raise ValueError(f"Saunderson constants must satisfy 0 <= k1 < 1 and 0 <= k2 < 1, got k1={k1}, k2={k2}")

@@ -126,9 +126,7 @@ class SpectralTable:
             if w.size < 2:
                 raise InputError("a spectral table needs at least 2 wavelengths", path=path)
             if not np.all(np.isfinite(w)) or w[0] <= 0 or np.any(np.diff(w) <= 0):
-                raise InputError(
-                    "wavelengths must be finite, positive and strictly increasing (nm)", path=path
-                )
+                raise InputError("wavelengths must be finite, positive and strictly increasing (nm)", path=path)
         else:
             if not self.channels:
                 raise InputError("a camera table needs at least one channel", path=path)
@@ -151,8 +149,7 @@ class SpectralTable:
         quantity = self.metadata.get("quantity")
         if quantity is None:
             raise InputError(
-                "the header has no 'quantity' line; expected '# quantity: radiance' or "
-                "'# quantity: reflectance'",
+                "the header has no 'quantity' line; expected '# quantity: radiance' or '# quantity: reflectance'",
                 path=self.path,
                 field="quantity",
             )
@@ -171,9 +168,7 @@ class SpectralTable:
             k = self.columns.index(name)
         except ValueError:
             available = ", ".join(f"'{c}'" for c in self.columns)
-            raise InputError(
-                f"no column '{name}'; the table has {available}", path=self.path, field=name
-            ) from None
+            raise InputError(f"no column '{name}'; the table has {available}", path=self.path, field=name) from None
         return self.values[k]
 
     def validate_values(self, *, lines: Sequence[int] | None = None) -> None:
@@ -203,9 +198,7 @@ class SpectralTable:
         if value < 0:
             message = f"negative {noun} {value!r} in column '{self.columns[k]}' at {self._where(i)}; "
             if value <= CS2000_ERROR_SENTINEL * (1 - 1e-4):
-                message += (
-                    "this is the CS-2000 calculation-error value (over-range or failed reading): re-measure"
-                )
+                message += "this is the CS-2000 calculation-error value (over-range or failed reading): re-measure"
             else:
                 message += (
                     "radiance and reflectance must be >= 0 (kmpipe does not clip measured data: correct "
@@ -231,9 +224,7 @@ def _check_names(names: Iterable[str], kind: str, path: Path | None) -> None:
         if not isinstance(name, str) or not name:
             raise InputError(f"every {kind} needs a non-empty name", path=path)
         if name in seen:
-            raise InputError(
-                f"{kind} name '{name}' appears twice; names must be unique", path=path, field=name
-            )
+            raise InputError(f"{kind} name '{name}' appears twice; names must be unique", path=path, field=name)
         seen.add(name)
 
 
@@ -289,9 +280,7 @@ def _read_text(path: Path) -> str:
             f"the file is not UTF-8 text ({err.reason}); expected a spectral CSV file", path=path
         ) from None
     except OSError as err:
-        raise InputError(
-            f"the file cannot be read ({err.strerror}); expected a spectral CSV file", path=path
-        ) from None
+        raise InputError(f"the file cannot be read ({err.strerror}); expected a spectral CSV file", path=path) from None
 
 
 def _split_csv(line: str, path: Path, line_no: int) -> list[str]:
@@ -419,16 +408,13 @@ def read_spectra_csv(path: str | os.PathLike[str]) -> SpectralTable:
 
     if header is None:
         raise InputError(
-            f"the file has no header row; expected a line such as '{WAVELENGTH_COLUMN},sample_1' after "
-            "the '#' lines",
+            f"the file has no header row; expected a line such as '{WAVELENGTH_COLUMN},sample_1' after the '#' lines",
             path=path,
         )
     if not rows:
         raise InputError("the table has a header but no data rows", path=path, line=header_line)
     if header[0] == WAVELENGTH_COLUMN and len(rows) < 2:
-        raise InputError(
-            "a spectral table needs at least 2 wavelengths, found 1", path=path, line=row_lines[0]
-        )
+        raise InputError("a spectral table needs at least 2 wavelengths, found 1", path=path, line=row_lines[0])
 
     _check_metadata(metadata, path, meta_lines)
     table = SpectralTable(
@@ -455,9 +441,7 @@ def _check_header(header: list[str], path: Path, line_no: int) -> None:
             field=first,
         )
     if len(header) < 2:
-        raise InputError(
-            f"the header has no measurement columns after '{first}'", path=path, line=line_no, field=first
-        )
+        raise InputError(f"the header has no measurement columns after '{first}'", path=path, line=line_no, field=first)
     seen = set()
     for position, name in enumerate(header[1:], start=2):
         if not name:
@@ -486,9 +470,7 @@ def _check_writable_text(text: str, what: str, path: Path, key: str, *, allow_em
     elif what == "metadata key" and ":" in text:
         problem = "contains ':'"
     if problem:
-        raise InputError(
-            f"{what} {text!r} {problem}, so it cannot be written to the CSV", path=path, field=key
-        )
+        raise InputError(f"{what} {text!r} {problem}, so it cannot be written to the CSV", path=path, field=key)
 
 
 def write_spectra_csv(table: SpectralTable, path: str | os.PathLike[str]) -> None:
@@ -608,17 +590,14 @@ _INTERPOLATORS = {
 
 def _interpolator(method: str, source: np.ndarray, path: Path | None) -> type:
     if method not in METHODS:
-        raise InputError(
-            f"interpolation method '{method}' is not one of {', '.join(METHODS)}", field="method"
-        )
+        raise InputError(f"interpolation method '{method}' is not one of {', '.join(METHODS)}", field="method")
     uniform = _is_uniform(source)
     n = source.size
     if method == "auto":
         return SpragueInterpolator if uniform and n >= 6 else PchipInterpolator
     if method == "sprague" and not (uniform and n >= 6):
         raise InputError(
-            "Sprague interpolation needs a uniform source grid of at least 6 wavelengths; "
-            "use 'pchip' or 'cubic'",
+            "Sprague interpolation needs a uniform source grid of at least 6 wavelengths; use 'pchip' or 'cubic'",
             path=path,
             field="method",
         )
@@ -627,9 +606,7 @@ def _interpolator(method: str, source: np.ndarray, path: Path | None) -> type:
     return _INTERPOLATORS[method]
 
 
-def resample(
-    table: SpectralTable, wavelengths: Sequence[float] | np.ndarray, *, method: str = "auto"
-) -> SpectralTable:
+def resample(table: SpectralTable, wavelengths: Sequence[float] | np.ndarray, *, method: str = "auto") -> SpectralTable:
     """The table's measurements at other wavelengths (nm), by interpolation; never extrapolates.
 
     Where a target wavelength coincides with a source wavelength (within `COINCIDE_NM`), the source value is
@@ -673,12 +650,7 @@ def resample(
     if table.wavelengths is None:
         raise InputError("a camera channel table cannot be resampled to wavelengths", path=table.path)
     target = np.array(wavelengths, dtype=float)
-    if (
-        target.ndim != 1
-        or target.size == 0
-        or not np.all(np.isfinite(target))
-        or np.any(np.diff(target) <= 0)
-    ):
+    if target.ndim != 1 or target.size == 0 or not np.all(np.isfinite(target)) or np.any(np.diff(target) <= 0):
         raise InputError(
             "target wavelengths must be a non-empty, finite, strictly increasing list (nm)",
             field="wavelengths",

@@ -67,9 +67,7 @@ def _check_certified(values: np.ndarray, where: Callable[[int], str], what: str,
         )
 
 
-def certified_reflectance(
-    spec: str, wavelengths_nm: Sequence[float] | np.ndarray, *, base_dir: Path
-) -> np.ndarray:
+def certified_reflectance(spec: str, wavelengths_nm: Sequence[float] | np.ndarray, *, base_dir: Path) -> np.ndarray:
     """Certified reflectance (fraction) of the white standard, resampled to ``wavelengths_nm`` (nm).
 
     Parameters
@@ -92,9 +90,7 @@ def certified_reflectance(
     grid = np.array(wavelengths_nm, dtype=float)
     if spec.startswith("builtin:"):
         if spec != BUILTIN_BASO4:
-            raise InputError(
-                f"unknown built-in white standard '{spec}'; the built-in one is '{BUILTIN_BASO4}'"
-            )
+            raise InputError(f"unknown built-in white standard '{spec}'; the built-in one is '{BUILTIN_BASO4}'")
         return baso4_typical(grid)
 
     base_dir = Path(base_dir)
@@ -125,16 +121,13 @@ def certified_reflectance(
         if len(table.columns) != 1:
             names = ", ".join(table.columns)
             raise InputError(
-                f"white standard '{spec}' has {len(table.columns)} columns ({names}); "
-                "name one as PATH:COLUMN",
+                f"white standard '{spec}' has {len(table.columns)} columns ({names}); name one as PATH:COLUMN",
                 path=path,
             )
         column = table.columns[0]
     table.column(column)
     values = np.array(resample(table, grid).column(column))
-    _check_certified(
-        values, lambda i: f"{format_number(grid[i])} nm", f"certified white reflectance '{spec}'", path
-    )
+    _check_certified(values, lambda i: f"{format_number(grid[i])} nm", f"certified white reflectance '{spec}'", path)
     return values
 
 
@@ -314,8 +307,7 @@ def radiance_to_reflectance(
     if np.any(dark < 0):
         i = int(np.argmax(dark < 0))
         raise source.error(
-            f"{source.name('dark')} is {format_number(dark[i])} at {source.at(i)}; a radiance cannot be "
-            "negative",
+            f"{source.name('dark')} is {format_number(dark[i])} at {source.at(i)}; a radiance cannot be negative",
             source.dark,
         )
     net_white = white - dark

@@ -1,0 +1,85 @@
+"""Colour of reflectance spectra under a CIE illuminant, through colour-science.
+
+CIE 1931 2 deg (default) or CIE 1964 10 deg observer; tristimulus values by colour-science's
+integration (ASTM E308-style weighting on the spectra's own grid: colour aligns the CMFs and the
+illuminant to it), CIELAB relative to the perfect reflecting diffuser under the same illuminant on the
+same grid (so a spectrum limited to 400-700 nm is compared with a white limited the same way), Delta E
+2000 (CIE 142-2001), and sRGB (IEC 61966-2-1) after CAT02 adaptation from the illuminant's white to D65,
+for swatches. Arrays: reflectance with wavelength last.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import colour
+import numpy as np
+
+from kmpipe.errors import InputError
+
+OBSERVERS = {
+    "2": "CIE 1931 2 Degree Standard Observer",
+    "10": "CIE 1964 10 Degree Standard Observer",
+}
+
+#: Names accepted on the command line -> colour-science's names (F11 is 'FL11' there).
+_ALIASES = {"F2": "FL2", "F7": "FL7", "F11": "FL11"}
+
+
+def illuminant_sd(name: str) -> colour.SpectralDistribution:
+    """The CIE illuminant called ``name`` (A, D50, D55, D65, D75, E, F2, F7, F11, ...)."""
+    key = _ALIASES.get(name.upper(), name.upper())
+    if key not in colour.SDS_ILLUMINANTS:
+        known = ", ".join(sorted(set(colour.SDS_ILLUMINANTS) & {"A", "D50", "D55", "D65", "D75", "E", "FL2", "FL11"}))
+        raise InputError(
+            f"unknown illuminant {name!r}; expected one of {known.replace('FL', 'F')}", field="--illuminant"
+        )
+    return colour.SDS_ILLUMINANTS[key]
+
+
+def _cmfs(observer: str) -> colour.MultiSpectralDistributions:
+    if observer not in OBSERVERS:
+        raise InputError(f"observer must be 2 or 10 (degrees), got {observer!r}", field="--observer")
+    return colour.MSDS_CMFS[OBSERVERS[observer]]
+
+
+def reflectance_to_XYZ(reflectance, wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
+    """Tristimulus values (Y = 100 for the perfect white) of reflectance spectra, shape (..., 3).
+
+    X = k sum R(l) S(l) xbar(l), k = 100 / sum S(l) ybar(l) (ASTM E308 weighting), by
+    ``colour.msds_to_XYZ(method="Integration")`` on the spectra's grid.
+    """
+    R = np.asarray(reflectance, dtype=np.float64)
+    wavelengths = np.asarray(wavelengths, dtype=np.float64)
+    flat = R.reshape(-1, R.shape[-1])
+    msds = colour.MultiSpectralDistributions(flat.T, wavelengths)
+    with warnings.catch_warnings():
+        # colour warns that it aligns the CMFs and illuminant to the spectra's shape: that is intended.
+        warnings.simplefilter("ignore", colour.utilities.ColourWarning)
+        XYZ = colour.msds_to_XYZ(msds, cmfs=_cmfs(observer), illuminant=illuminant_sd(illuminant), method="Integration")
+    return np.asarray(XYZ).reshape(*R.shape[:-1], 3)
+
+
+def white_XYZ(wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
+    """XYZ of the perfect reflecting diffuser on the same grid (the CIELAB reference white)."""
+    return reflectance_to_XYZ(np.ones(len(wavelengths)), wavelengths, illuminant, observer)
+
+
+def reflectance_to_Lab(reflectance, wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
+    """CIELAB of reflectance spectra relative to the perfect white under the same illuminant and grid."""
+    XYZ = reflectance_to_XYZ(reflectance, wavelengths, illuminant, observer)
+    white = white_XYZ(wavelengths, illuminant, observer)
+    return colour.XYZ_to_Lab(XYZ / 100.0, colour.XYZ_to_xy(white / 100.0))
+
+
+def delta_E_2000(Lab_1, Lab_2) -> np.ndarray:
+    """CIE Delta E 2000 (CIE 142-2001) between two CIELAB arrays."""
+    return np.asarray(colour.delta_E(Lab_1, Lab_2, method="CIE 2000"))
+
+
+def reflectance_to_sRGB(reflectance, wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
+    """Display sRGB in [0, 1] (gamma-encoded, clipped) of reflectance spectra, CAT02-adapted to D65."""
+    XYZ = reflectance_to_XYZ(reflectance, wavelengths, illuminant, observer) / 100.0
+    white = white_XYZ(wavelengths, illuminant, observer) / 100.0
+    RGB = colour.XYZ_to_sRGB(XYZ, illuminant=colour.XYZ_to_xy(white), chromatic_adaptation_transform="CAT02")
+    return np.clip(RGB, 0.0, 1.0)
