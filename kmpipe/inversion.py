@@ -96,7 +96,7 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
 
     The inputs are broadcast as views (a scalar backing or a per-wavelength array is never copied to
     full size) and seen as rows of their last axis; blocks of about `_BLOCK` elements keep every
-    temporary in cache. ``regular(*blocks, tolerance, K, S, ks)`` fills the output blocks and returns
+    temporary in cache. ``regular(*blocks, tolerance, K, S, ks, flags)`` fills the output blocks and returns
     a mask of the elements it cannot do (flagged, limiting or out-of-range ones); after all blocks,
     ``careful(*values, tolerance)`` returns K, S, K/S and flags for those, in one call.
     """
@@ -112,7 +112,7 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
 
     for lo in range(0, count, step):
         block = slice(lo, lo + step)
-        hard[block] = regular(*(r[block] for r in rows), tolerance, K[block], S[block], ks[block])
+        hard[block] = regular(*(r[block] for r in rows), tolerance, K[block], S[block], ks[block], flags[block])
     where = np.nonzero(hard)
     if where[0].size:
         K[where], S[where], ks[where], flags[where] = careful(*(r[where] for r in rows), tolerance)
@@ -141,8 +141,10 @@ def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> In
     return _blockwise(_two_constant_regular, _two_constant_careful, (R_inf, R, R_g, X), tolerance)
 
 
-def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks):
+def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks, flags):
     """The common case of :func:`two_constant` into K, S, ks: S X = log1p(delta) / (1/R_inf - R_inf).
+
+    ``flags`` is left at 0: every flagged case is irregular.
 
     Returns the mask of elements that are flagged, out of range, or have delta < 1e-4 (where
     log1p(delta)/delta needs its series): :func:`_two_constant_careful` redoes those.
@@ -237,13 +239,14 @@ def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: f
     )
 
 
-def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks):
-    """The common case of :func:`black_white` into K, S, ks, with few temporaries.
+def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
+    """The common case of :func:`black_white` into K, S, ks (and flags), with few temporaries.
 
-    K/S slightly below 0 (by at most ``tolerance``: noise on a nearly non-absorbing film) is taken as
-    K = 0. Returns the mask of elements that are opaque, out of range, or near D = 0 (a clear absorber,
-    where rounding decides the sign of D): those are redone by :func:`_black_white_careful`. Values
-    computed at those elements may be inf or nan.
+    A negative K/S (noise on a nearly non-absorbing film) is taken as K = 0, S X = D / N_y, the nearest
+    physical solution; below -``tolerance`` it is also flagged OUT_OF_RANGE. Returns the mask of elements
+    that are opaque, out of range otherwise, or near D = 0 (a clear absorber, where rounding decides the
+    sign of D): those are redone by :func:`_black_white_careful`. Values computed at those elements may be
+    inf or nan.
     """
     with np.errstate(all="ignore"):
         s_w = Rw + Gw
@@ -259,7 +262,9 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks):
         K -= c_b * d_w  # N_u
         Ny = s_w * c_b
         Ny -= s_b * c_w
-        irregular = ~((K >= -tolerance * D) & (D > 1e-12 * first))
+        irregular = ~(D > 1e-12 * first)
+        negative = K < -tolerance * D
+        flags[negative] = np.uint8(Flag.OUT_OF_RANGE)
         np.maximum(K, 0.0, out=K)
         b_num = 2.0 * D
         b_num += K

@@ -1,0 +1,365 @@
+"""What people read after validation: a self-contained HTML page per sample, and an index of a batch.
+
+:func:`write_sample_report` writes ``validation.json`` (see :func:`kmpipe.validation.report_to_dict`) and
+``report.html``: a header with the verdict, the findings, a table of the measurements with the cells over
+the thresholds marked, and three figures (measured vs predicted reflectance with residuals, K and S with
+their standard errors, colour swatches). :func:`write_index` writes ``index.html`` and ``summary.json``
+for a batch, failing samples first. Every file is written atomically and the HTML pages need nothing but
+themselves: the figures are embedded PNGs, the styles inline.
+
+Figures are drawn with :class:`matplotlib.figure.Figure` on the Agg canvas, so no pyplot state is touched
+and nothing needs closing.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+import os
+import tempfile
+from dataclasses import fields
+from pathlib import Path
+from urllib.parse import quote
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from kmpipe.colorimetry import reflectance_to_sRGB
+from kmpipe.flags import Flag
+from kmpipe.validation import SEVERITIES, SampleReport, _ranges, report_to_dict
+
+DPI = 100
+SPECTRA_SIZE = (9.0, 7.0)  # inches
+KS_SIZE = (9.0, 5.0)
+SWATCH_COLUMNS = 5
+
+STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 960px; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; vertical-align: top; }
+th { background: #f2f2f2; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.badge { display: inline-block; padding: 0.1em 0.7em; border-radius: 0.8em; color: #fff; font-weight: bold; }
+.badge.pass { background: #2e7d32; } .badge.warn { background: #e69500; } .badge.fail { background: #c62828; }
+td.warn { background: #fff1cc; } td.fail { background: #f9d0d0; font-weight: bold; }
+tr.warn td:first-child { border-left: 4px solid #e69500; } tr.fail td:first-child { border-left: 4px solid #c62828; }
+dl { display: grid; grid-template-columns: max-content auto; gap: 0.2em 1em; }
+dt { font-weight: bold; } dd { margin: 0; }
+img { max-width: 100%; height: auto; }
+.note { background: #eef3fb; border-left: 4px solid #5b7fbf; padding: 0.5em 1em; }
+"""
+
+
+# --- files -----------------------------------------------------------------------------------------------
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file next to ``path``, then rename it over ``path``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _page(title: str, body: str) -> str:
+    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}'
+            f"</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n")
+
+
+def _badge(verdict: str) -> str:
+    return f'<span class="badge {verdict}">{verdict}</span>'
+
+
+def _table(header: list[str], rows: list[str]) -> str:
+    head = "".join(f"<th>{h}</th>" for h in header)
+    return f"<table>\n<tr>{head}</tr>\n" + "\n".join(rows) + "\n</table>"
+
+
+# --- figures ---------------------------------------------------------------------------------------------
+
+
+def swatch_figsize(count: int) -> tuple[float, float]:
+    """Size (inches) of the swatch figure for ``count`` measurements: rows of :data:`SWATCH_COLUMNS`."""
+    rows = max(1, math.ceil(count / SWATCH_COLUMNS))
+    return 9.0, 0.6 + 2.2 * rows
+
+
+def _png_img(fig: Figure, element_id: str, alt: str) -> str:
+    """The figure as an ``<img>`` with the PNG embedded (no Software tag, so the bytes are reproducible)."""
+    FigureCanvasAgg(fig)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
+    width, height = (round(v * DPI) for v in fig.get_size_inches())
+    data = base64.b64encode(buffer.getvalue()).decode("ascii")
+    return (f'<img id="{element_id}" alt="{html.escape(alt)}" width="{width}" height="{height}" '
+            f'src="data:image/png;base64,{data}">')
+
+
+def _x_axis(report: SampleReport) -> np.ndarray:
+    """Wavelengths (nm), or positions 0, 1, ... of camera channels."""
+    if report.spectral:
+        return np.asarray(report.material.wavelengths, dtype=np.float64)
+    return np.arange(len(report.labels), dtype=np.float64)
+
+
+def _label_x_axis(ax, report: SampleReport) -> None:
+    if report.spectral:
+        ax.set_xlabel("wavelength (nm)")
+    else:
+        ax.set_xticks(_x_axis(report), [str(label) for label in report.labels])
+        ax.set_xlabel("camera channel")
+
+
+def _colours(count: int) -> list:
+    """Distinct colours for ``count`` measurements (tab10, or tab20 cycled for more than ten)."""
+    cmap = colormaps["tab10" if count <= 10 else "tab20"]
+    return [cmap(i % cmap.N) for i in range(count)]
+
+
+def draw_spectra(report: SampleReport) -> Figure:
+    """Measured reflectance (markers) and predicted (line, same colour) per measurement, the backings
+    in thin grey, and the residuals (predicted - measured) beneath with the noise level shaded."""
+    x = _x_axis(report)
+    fig = Figure(figsize=SPECTRA_SIZE, layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1.3))
+    for name, values in report.backings.items():
+        top.plot(x, values, color="0.6", linewidth=0.8, zorder=1)
+        top.annotate(f"backing: {name}", (x[-1], values[-1]), textcoords="offset points", xytext=(-4, 4),
+                     ha="right", fontsize=8, color="0.45")
+    handles = []
+    for c, colour in zip(report.measurements, _colours(len(report.measurements)), strict=True):
+        (points,) = top.plot(x, c.measured, "o", markersize=3, color=colour, zorder=3)
+        (line,) = top.plot(x, c.predicted, "-", linewidth=1.4, color=colour, zorder=2)
+        bottom.plot(x, c.residuals, "-", marker="." if not report.spectral else None, color=colour)
+        handles.append((points, line))
+    top.legend(handles, [c.id for c in report.measurements], loc="upper left", bbox_to_anchor=(1.01, 1.0),
+               fontsize=8, title="measurement", title_fontsize=8)
+    top.set_ylabel("reflectance")
+    top.set_title(f"{report.material.name}: measured (markers) vs predicted (lines) reflectance")
+    top.grid(alpha=0.3)
+    sigma = report.noise_sigma
+    bottom.axhspan(-sigma, sigma, color="0.85", zorder=0, label=f"±1σ noise ({report.noise_source})")
+    bottom.axhline(0.0, color="0.3", linewidth=0.8)
+    bottom.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    bottom.set_ylabel("residual\n(reflectance)")
+    bottom.grid(alpha=0.3)
+    _label_x_axis(bottom, report)
+    return fig
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index of each run of True in a boolean mask."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def draw_ks(report: SampleReport) -> Figure:
+    """K and S (1/mm) on a log axis with ±1 standard-error bands and the opaque wavelengths shaded."""
+    material = report.material
+    x = _x_axis(report)
+    fig = Figure(figsize=KS_SIZE, layout="constrained")
+    ax = fig.subplots()
+    positive = np.concatenate([v[(v > 0) & np.isfinite(v)] for v in (material.K, material.S)])
+    floor = positive.min() / 10.0 if positive.size else 1e-3
+    for name, values, stderr, colour in (("K", material.K, material.K_stderr, "C3"),
+                                         ("S", material.S, material.S_stderr, "C0")):
+        ax.plot(x, np.where(values > 0, values, np.nan), "-o", markersize=2.5, color=colour, label=name)
+        if stderr is not None:
+            known = np.isfinite(stderr)
+            ax.fill_between(x, np.maximum(values - np.where(known, stderr, 0.0), floor),
+                            values + np.where(known, stderr, 0.0), where=known & (values > 0), color=colour,
+                            alpha=0.2, linewidth=0, label=f"{name} ± 1 standard error")
+    step = float(np.median(np.diff(x))) if x.size > 1 else 1.0
+    opaque = (material.flags & np.uint8(Flag.OPAQUE)) != 0
+    for n, (first, last) in enumerate(_runs(opaque)):
+        ax.axvspan(x[first] - step / 2, x[last] + step / 2, color="0.8", alpha=0.6, zorder=0, linewidth=0,
+                   label="opaque: K, S are lower bounds" if n == 0 else None)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=floor)
+    ax.set_ylabel("K, S (1/mm)")
+    ax.set_title(f"{material.name}: absorption K and scattering S ({material.method})")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    _label_x_axis(ax, report)
+    return fig
+
+
+def draw_swatches(report: SampleReport) -> Figure:
+    """One square per measurement, measured colour left and predicted right (sRGB under the first
+    illuminant), titled with the measurement id and Delta E 2000 (coloured by its threshold level)."""
+    illuminant = report.illuminants[0]
+    wavelengths = report.material.wavelengths
+    measured = reflectance_to_sRGB(np.array([c.measured for c in report.measurements]), wavelengths,
+                                   illuminant, report.observer)
+    predicted = reflectance_to_sRGB(np.array([c.predicted for c in report.measurements]), wavelengths,
+                                    illuminant, report.observer)
+    count = len(report.measurements)
+    rows = max(1, math.ceil(count / SWATCH_COLUMNS))
+    fig = Figure(figsize=swatch_figsize(count), layout="constrained")
+    axes = fig.subplots(rows, SWATCH_COLUMNS, squeeze=False).ravel()
+    for ax in axes:
+        ax.set_axis_off()
+    colours = {"pass": "black", "warn": "#b36b00", "fail": "#c62828"}
+    for ax, c, left, right in zip(axes, report.measurements, measured, predicted, strict=False):
+        ax.imshow(np.array([[left, right]]), extent=(0, 2, 0, 2), interpolation="nearest")
+        ax.axvline(1.0, color="white", linewidth=1)
+        ax.text(0.5, -0.15, "measured", ha="center", va="top", fontsize=7)
+        ax.text(1.5, -0.15, "predicted", ha="center", va="top", fontsize=7)
+        value = c.delta_e[illuminant]
+        level = _level(value, report.thresholds.delta_e_warn, report.thresholds.delta_e_fail)
+        ax.set_title(c.id.replace(":", ":\n", 1) + f"\nΔE00 {value:.2f}", fontsize=8, color=colours[level])
+    fig.suptitle(f"{report.material.name}: colour under {illuminant}, {report.observer}° observer "
+                 "(left measured, right predicted)")
+    return fig
+
+
+# --- tables ----------------------------------------------------------------------------------------------
+
+
+def _level(value: float | None, warn: float, fail: float) -> str:
+    """'fail', 'warn' or 'pass' for a value against its thresholds (over, not at, a threshold fires)."""
+    if value is None or value <= warn:
+        return "pass"
+    return "fail" if value > fail else "warn"
+
+
+def _where(report: SampleReport, where: list) -> str:
+    """Compact ranges of a finding's wavelengths or channels: '380-500, 620 nm', 'R, G'."""
+    wanted = set(where)
+    return _ranges(report.labels, np.array([label in wanted for label in report.labels], dtype=bool))
+
+
+def _header(report: SampleReport) -> str:
+    m = report.material
+    thresholds = ", ".join(f"{f.name} {getattr(report.thresholds, f.name):g}" for f in fields(report.thresholds))
+    items = {
+        "product": m.product,
+        "material file": str(report.material_path),
+        "manifest": str(report.manifest_path),
+        "method": m.method + ("" if m.saunderson is None else f", Saunderson k1 {m.saunderson[0]:g}, "
+                              f"k2 {m.saunderson[1]:g}"),
+        "reasons": ", ".join(report.reasons) or "none",
+        "noise σ": f"{report.noise_sigma:.4f} reflectance (from {report.noise_source})",
+        "illuminants": ", ".join(report.illuminants) or "none (camera channels)",
+        "observer": f"{report.observer}°",
+        "thresholds": thresholds,
+        "data": '<a href="validation.json">validation.json</a>',
+    }
+    rows = "\n".join(f"<dt>{html.escape(k)}</dt><dd>{v if k == 'data' else html.escape(v)}</dd>"
+                     for k, v in items.items())
+    return (f"<h1>{html.escape(m.name)} {_badge(report.verdict)}</h1>\n<dl>\n{rows}\n</dl>")
+
+
+def _findings_table(report: SampleReport) -> str:
+    if not report.findings:
+        return "<p>No findings: every check passed.</p>"
+    ordered = sorted(report.findings, key=lambda f: -SEVERITIES.index(f.severity))
+    rows = [f'<tr class="{f.severity}"><td>{_badge(f.severity)}</td><td><code>{html.escape(f.code)}</code></td>'
+            f"<td>{html.escape(f.message)}</td><td>{html.escape(f.measurement or '—')}</td>"
+            f"<td>{html.escape(_where(report, f.where)) or '—'}</td></tr>" for f in ordered]
+    return _table(["severity", "code", "message", "measurement", "where"], rows)
+
+
+def _measurement_table(report: SampleReport) -> str:
+    t = report.thresholds
+    unit = " nm" if report.spectral else ""
+    header = ["id", "role", "over", "thickness (µm)", "RMSE", "max |error|", "at",
+              *(f"ΔE00 {name}" for name in report.illuminants), "repeats", "repeat spread"]
+    rows = []
+    for c in report.measurements:
+        row_level = max((f.severity for f in report.findings if f.measurement == c.id),
+                        key=SEVERITIES.index, default="pass")
+        at = report.labels[c.max_abs_index]
+        cells = [html.escape(c.id), c.role, html.escape(c.over or "—"),
+                 "masstone" if math.isinf(c.thickness_mm) else f"{c.thickness_mm * 1000:g}"]
+        cells = [f"<td>{cell}</td>" for cell in cells]
+        cells.append(f'<td class="num {_level(c.rmse, t.rmse_warn, t.rmse_fail)}">{c.rmse:.4f}</td>')
+        cells.append(f'<td class="num">{abs(c.residuals[c.max_abs_index]):.4f}</td>')
+        cells.append(f"<td>{html.escape(f'{at:g}' if report.spectral else str(at))}{unit}</td>")
+        for name in report.illuminants:
+            value = c.delta_e[name]
+            cells.append(f'<td class="num {_level(value, t.delta_e_warn, t.delta_e_fail)}">{value:.2f}</td>')
+        spread = "—" if c.repeat_spread is None else f"{c.repeat_spread:.4f}"
+        cells.append(f'<td class="num">{c.repeat_count}</td><td class="num">{spread}</td>')
+        rows.append(f'<tr class="{row_level}">' + "".join(cells) + "</tr>")
+    return _table(header, rows)
+
+
+# --- the pages -------------------------------------------------------------------------------------------
+
+
+def render_sample_html(report: SampleReport) -> str:
+    """The whole self-contained report page of one sample."""
+    name = report.material.name
+    parts = [
+        _header(report),
+        "<h2>Findings</h2>", _findings_table(report),
+        "<h2>Measurements</h2>",
+        f"<p>Cells over the warn thresholds are amber, over the fail thresholds red (RMSE "
+        f"{report.thresholds.rmse_warn:g} / {report.thresholds.rmse_fail:g}, ΔE00 "
+        f"{report.thresholds.delta_e_warn:g} / {report.thresholds.delta_e_fail:g}); "
+        "a row's left edge shows the worst finding about it.</p>",
+        _measurement_table(report),
+        "<h2>Measured vs predicted</h2>",
+        _png_img(draw_spectra(report), "plot-spectra", f"{name}: measured and predicted reflectance of every "
+                 "measurement, with residuals"),
+        "<h2>K and S</h2>",
+        _png_img(draw_ks(report), "plot-ks", f"{name}: K and S per mm with standard-error bands"),
+    ]
+    if report.spectral:
+        parts += ["<h2>Colour swatches</h2>",
+                  _png_img(draw_swatches(report), "plot-swatches", f"{name}: measured and predicted colour "
+                           f"of every measurement under {report.illuminants[0]}")]
+    else:
+        parts.append('<p class="note">Camera-channel material: colour differences (ΔE 2000) and colour '
+                     "swatches need spectra, so they are not computed for this sample.</p>")
+    return _page(f"kmpipe validation: {name}", "\n".join(parts))
+
+
+def write_sample_report(report: SampleReport, out_dir: Path) -> Path:
+    """Write ``validation.json`` and ``report.html`` into ``out_dir`` (created); return the HTML path."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    document = json.dumps(report_to_dict(report, html="report.html"), indent=1, allow_nan=False)
+    _write_atomically(out_dir / "validation.json", document + "\n")
+    path = out_dir / "report.html"
+    _write_atomically(path, render_sample_html(report))
+    return path
+
+
+def write_index(entries: list[tuple[SampleReport, Path]], out_dir: Path) -> Path:
+    """Write ``index.html`` and ``summary.json`` for a batch into ``out_dir``, failing samples first;
+    ``entries`` pair each report with its report.html. Return the index path."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ordered = sorted(entries, key=lambda e: (-SEVERITIES.index(e[0].verdict), e[0].material.name))
+    summary, rows = [], []
+    for report, page in ordered:
+        link = Path(os.path.relpath(Path(page).resolve(), out_dir.resolve())).as_posix()
+        doc = report_to_dict(report)
+        worst = doc["worst_delta_e_2000"]
+        summary.append({key: doc[key] for key in ("sample", "product", "verdict", "worst_delta_e_2000", "reasons")}
+                       | {"report": link})
+        rows.append(f'<tr class="{report.verdict}"><td>{html.escape(report.material.name)}</td>'
+                    f"<td>{html.escape(report.material.product)}</td><td>{_badge(report.verdict)}</td>"
+                    f'<td class="num">{"—" if worst is None else f"{worst:.2f}"}</td>'
+                    f"<td>{html.escape(', '.join(report.reasons)) or '—'}</td>"
+                    f'<td><a href="{html.escape(quote(link))}">{html.escape(link)}</a></td></tr>')
+    counts = ", ".join(f"{sum(e[0].verdict == v for e in entries)} {v}" for v in reversed(SEVERITIES))
+    body = (f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n"
+            + _table(["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows))
+    _write_atomically(out_dir / "summary.json", json.dumps(summary, indent=1, allow_nan=False) + "\n")
+    path = out_dir / "index.html"
+    _write_atomically(path, _page("kmpipe validation summary", body))
+    return path
