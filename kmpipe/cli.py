@@ -246,15 +246,17 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
         raise InputError("expected one or more illuminant names, e.g. D65,A", field="--illuminant")
     base = args.material if args.material.is_dir() else args.material.parent
     out_dir = args.output or base / "reports"
-    entries = []
+    entries, broken = [], []
     for path in materials:
-        report = validate_material(
-            path,
-            manifest=args.manifest,
-            illuminants=illuminants,
-            observer=args.observer,
-            thresholds=thresholds,
-        )
+        try:
+            report = validate_material(
+                path, manifest=args.manifest, illuminants=illuminants, observer=args.observer, thresholds=thresholds
+            )
+        except InputError as err:
+            if len(materials) == 1:
+                raise
+            broken.append((path, err))  # one unreadable material must not stop a product line's batch
+            continue
         folder = out_dir / report.material.name if len(materials) > 1 or args.output is None else out_dir
         entries.append((report, write_sample_report(report, folder)))
 
@@ -275,12 +277,19 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
             "n/a" if worst is None else f"{worst:.2f}",
             escape(", ".join(report.reasons)) or "none",
         )
+    for path, err in broken:
+        table.add_row(path.name, "[red]error[/]", "", escape(err.message))
     console.print(table)
-    if len(entries) > 1:
+    if len(materials) == 1:
+        console.print(f"report: {entries[0][1]}", highlight=False)
+    elif entries:
         index = write_index(entries, out_dir)
         console.print(f"index of {len(entries)} reports: {index}", highlight=False)
-    else:
-        console.print(f"report: {entries[0][1]}", highlight=False)
+    if broken:
+        errors = Console(stderr=True)
+        for _, err in broken:
+            errors.print(f"[bold red]kmpipe validate: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
+        return EXIT_BAD_INPUT
     return EXIT_CHECK_FAILED if any(report.verdict == "fail" for report, _ in entries) else EXIT_OK
 
 

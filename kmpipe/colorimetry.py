@@ -56,6 +56,7 @@ def reflectance_to_XYZ(reflectance, wavelengths, illuminant: str = "D65", observ
     with warnings.catch_warnings():
         # colour warns that it aligns the CMFs and illuminant to the spectra's shape: that is intended.
         warnings.simplefilter("ignore", colour.utilities.ColourWarning)
+        warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         XYZ = colour.msds_to_XYZ(msds, cmfs=_cmfs(observer), illuminant=illuminant_sd(illuminant), method="Integration")
     return np.asarray(XYZ).reshape(*R.shape[:-1], 3)
 

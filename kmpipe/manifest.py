@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from decimal import Decimal
 from pathlib import Path
 from typing import Literal
 
@@ -19,7 +20,13 @@ from kmpipe.spectra import uniform_grid
 
 METHODS = ("two-constant", "black-white", "lsq")
 
-_LENGTH_UNITS_MM = {"nm": 1e-6, "um": 1e-3, "µm": 1e-3, "μm": 1e-3, "mm": 1.0}
+_LENGTH_UNITS_MM = {
+    "nm": Decimal("1e-6"),
+    "um": Decimal("1e-3"),
+    "µm": Decimal("1e-3"),
+    "μm": Decimal("1e-3"),
+    "mm": Decimal(1),
+}
 _LENGTH = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµμ]+)\s*$")
 
 
@@ -30,7 +37,8 @@ def parse_thickness_mm(text: str) -> float:
         raise ValueError(
             f"expected a thickness with a unit, like '30 um' or '0.03 mm' (units: nm, um, mm), got {text!r}"
         )
-    value = float(match.group(1)) * _LENGTH_UNITS_MM[match.group(2)]
+    # Decimal arithmetic, so that '25000 nm', '25 um' and '0.025 mm' give the same float (repeats group by it).
+    value = float(Decimal(match.group(1)) * _LENGTH_UNITS_MM[match.group(2)])
     if not (value > 0.0 and math.isfinite(value)):
         raise ValueError(f"thickness must be > 0, got {text!r}")
     return value

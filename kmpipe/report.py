@@ -16,6 +16,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import itertools
 import json
 import math
 import os
@@ -31,7 +32,7 @@ from matplotlib.figure import Figure
 
 from kmpipe.colorimetry import reflectance_to_sRGB
 from kmpipe.flags import Flag
-from kmpipe.validation import SEVERITIES, SampleReport, _ranges, report_to_dict
+from kmpipe.validation import SEVERITIES, SampleReport, format_ranges, report_to_dict
 
 DPI = 100
 SPECTRA_SIZE = (9.0, 7.0)  # inches
@@ -62,6 +63,7 @@ def _write_atomically(path: Path, text: str) -> None:
     """Write ``text`` to a temporary file next to ``path``, then rename it over ``path``."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o644)  # mkstemp makes 0600; reports are meant to be shared
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
             handle.flush()
@@ -73,8 +75,10 @@ def _write_atomically(path: Path, text: str) -> None:
 
 
 def _page(title: str, body: str) -> str:
-    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}'
-            f"</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n")
+    return (
+        f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}'
+        f"</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n"
+    )
 
 
 def _badge(verdict: str) -> str:
@@ -102,8 +106,10 @@ def _png_img(fig: Figure, element_id: str, alt: str) -> str:
     fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
     width, height = (round(v * DPI) for v in fig.get_size_inches())
     data = base64.b64encode(buffer.getvalue()).decode("ascii")
-    return (f'<img id="{element_id}" alt="{html.escape(alt)}" width="{width}" height="{height}" '
-            f'src="data:image/png;base64,{data}">')
+    return (
+        f'<img id="{element_id}" alt="{html.escape(alt)}" width="{width}" height="{height}" '
+        f'src="data:image/png;base64,{data}">'
+    )
 
 
 def _x_axis(report: SampleReport) -> np.ndarray:
@@ -128,31 +134,37 @@ def _colours(count: int) -> list:
 
 
 def draw_spectra(report: SampleReport) -> Figure:
-    """Measured reflectance (markers) and predicted (line, same colour) per measurement, the backings
-    in thin grey, and the residuals (predicted - measured) beneath with the noise level shaded."""
+    """Measured reflectance (markers) and predicted (same colour: a line over wavelength, a bar per camera
+    channel) for every measurement, the backings in thin grey, and beneath them the residuals (predicted -
+    measured) with the noise level shaded."""
     x = _x_axis(report)
     fig = Figure(figsize=SPECTRA_SIZE, layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1.3))
-    for name, values in report.backings.items():
-        top.plot(x, values, color="0.6", linewidth=0.8, zorder=1)
-        top.annotate(f"backing: {name}", (x[-1], values[-1]), textcoords="offset points", xytext=(-4, 4),
-                     ha="right", fontsize=8, color="0.45")
-    handles = []
+    handles, names = [], []
+    for (name, values), style in zip(report.backings.items(), itertools.cycle(("-", "--", ":", "-.")), strict=False):
+        handles += top.plot(x, values, style, color="0.55", linewidth=0.8, zorder=1)
+        names.append(f"backing: {name}")
+    predicted_style = (
+        {"linestyle": "-", "linewidth": 1.4}
+        if report.spectral
+        else {"linestyle": "none", "marker": "_", "markersize": 18, "markeredgewidth": 2}
+    )
     for c, colour in zip(report.measurements, _colours(len(report.measurements)), strict=True):
-        (points,) = top.plot(x, c.measured, "o", markersize=3, color=colour, zorder=3)
-        (line,) = top.plot(x, c.predicted, "-", linewidth=1.4, color=colour, zorder=2)
-        bottom.plot(x, c.residuals, "-", marker="." if not report.spectral else None, color=colour)
-        handles.append((points, line))
-    top.legend(handles, [c.id for c in report.measurements], loc="upper left", bbox_to_anchor=(1.01, 1.0),
-               fontsize=8, title="measurement", title_fontsize=8)
+        (points,) = top.plot(x, c.measured, "o", markersize=3 if report.spectral else 5, color=colour, zorder=3)
+        (predicted,) = top.plot(x, c.predicted, color=colour, zorder=2, **predicted_style)
+        bottom.plot(x, c.residuals, "-" if report.spectral else "o", color=colour)
+        handles.append((points, predicted))
+        names.append(c.id)
+    top.legend(handles, names, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     top.set_ylabel("reflectance")
-    top.set_title(f"{report.material.name}: measured (markers) vs predicted (lines) reflectance")
+    shape = "lines" if report.spectral else "bars"
+    top.set_title(f"{report.material.name}: measured (markers) vs predicted ({shape}) reflectance")
     top.grid(alpha=0.3)
     sigma = report.noise_sigma
     bottom.axhspan(-sigma, sigma, color="0.85", zorder=0, label=f"±1σ noise ({report.noise_source})")
     bottom.axhline(0.0, color="0.3", linewidth=0.8)
     bottom.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    bottom.set_ylabel("residual\n(reflectance)")
+    bottom.set_ylabel("predicted − measured\n(reflectance)")
     bottom.grid(alpha=0.3)
     _label_x_axis(bottom, report)
     return fig
@@ -172,19 +184,35 @@ def draw_ks(report: SampleReport) -> Figure:
     ax = fig.subplots()
     positive = np.concatenate([v[(v > 0) & np.isfinite(v)] for v in (material.K, material.S)])
     floor = positive.min() / 10.0 if positive.size else 1e-3
-    for name, values, stderr, colour in (("K", material.K, material.K_stderr, "C3"),
-                                         ("S", material.S, material.S_stderr, "C0")):
+    for name, values, stderr, colour in (
+        ("K", material.K, material.K_stderr, "C3"),
+        ("S", material.S, material.S_stderr, "C0"),
+    ):
         ax.plot(x, np.where(values > 0, values, np.nan), "-o", markersize=2.5, color=colour, label=name)
         if stderr is not None:
             known = np.isfinite(stderr)
-            ax.fill_between(x, np.maximum(values - np.where(known, stderr, 0.0), floor),
-                            values + np.where(known, stderr, 0.0), where=known & (values > 0), color=colour,
-                            alpha=0.2, linewidth=0, label=f"{name} ± 1 standard error")
+            ax.fill_between(
+                x,
+                np.maximum(values - np.where(known, stderr, 0.0), floor),
+                values + np.where(known, stderr, 0.0),
+                where=known & (values > 0),
+                color=colour,
+                alpha=0.2,
+                linewidth=0,
+                label=f"{name} ± 1 standard error",
+            )
     step = float(np.median(np.diff(x))) if x.size > 1 else 1.0
     opaque = (material.flags & np.uint8(Flag.OPAQUE)) != 0
     for n, (first, last) in enumerate(_runs(opaque)):
-        ax.axvspan(x[first] - step / 2, x[last] + step / 2, color="0.8", alpha=0.6, zorder=0, linewidth=0,
-                   label="opaque: K, S are lower bounds" if n == 0 else None)
+        ax.axvspan(
+            x[first] - step / 2,
+            x[last] + step / 2,
+            color="0.8",
+            alpha=0.6,
+            zorder=0,
+            linewidth=0,
+            label="opaque: K, S are lower bounds" if n == 0 else None,
+        )
     ax.set_yscale("log")
     ax.set_ylim(bottom=floor)
     ax.set_ylabel("K, S (1/mm)")
@@ -200,10 +228,12 @@ def draw_swatches(report: SampleReport) -> Figure:
     illuminant), titled with the measurement id and Delta E 2000 (coloured by its threshold level)."""
     illuminant = report.illuminants[0]
     wavelengths = report.material.wavelengths
-    measured = reflectance_to_sRGB(np.array([c.measured for c in report.measurements]), wavelengths,
-                                   illuminant, report.observer)
-    predicted = reflectance_to_sRGB(np.array([c.predicted for c in report.measurements]), wavelengths,
-                                    illuminant, report.observer)
+    measured = reflectance_to_sRGB(
+        np.array([c.measured for c in report.measurements]), wavelengths, illuminant, report.observer
+    )
+    predicted = reflectance_to_sRGB(
+        np.array([c.predicted for c in report.measurements]), wavelengths, illuminant, report.observer
+    )
     count = len(report.measurements)
     rows = max(1, math.ceil(count / SWATCH_COLUMNS))
     fig = Figure(figsize=swatch_figsize(count), layout="constrained")
@@ -219,8 +249,10 @@ def draw_swatches(report: SampleReport) -> Figure:
         value = c.delta_e[illuminant]
         level = _level(value, report.thresholds.delta_e_warn, report.thresholds.delta_e_fail)
         ax.set_title(c.id.replace(":", ":\n", 1) + f"\nΔE00 {value:.2f}", fontsize=8, color=colours[level])
-    fig.suptitle(f"{report.material.name}: colour under {illuminant}, {report.observer}° observer "
-                 "(left measured, right predicted)")
+    fig.suptitle(
+        f"{report.material.name}: colour under {illuminant}, {report.observer}° observer "
+        "(left measured, right predicted)"
+    )
     return fig
 
 
@@ -237,7 +269,7 @@ def _level(value: float | None, warn: float, fail: float) -> str:
 def _where(report: SampleReport, where: list) -> str:
     """Compact ranges of a finding's wavelengths or channels: '380-500, 620 nm', 'R, G'."""
     wanted = set(where)
-    return _ranges(report.labels, np.array([label in wanted for label in report.labels], dtype=bool))
+    return format_ranges(report.labels, np.array([label in wanted for label in report.labels], dtype=bool))
 
 
 def _header(report: SampleReport) -> str:
@@ -247,42 +279,61 @@ def _header(report: SampleReport) -> str:
         "product": m.product,
         "material file": str(report.material_path),
         "manifest": str(report.manifest_path),
-        "method": m.method + ("" if m.saunderson is None else f", Saunderson k1 {m.saunderson[0]:g}, "
-                              f"k2 {m.saunderson[1]:g}"),
+        "method": m.method
+        + ("" if m.saunderson is None else f", Saunderson k1 {m.saunderson[0]:g}, k2 {m.saunderson[1]:g}"),
         "reasons": ", ".join(report.reasons) or "none",
-        "noise σ": f"{report.noise_sigma:.4f} reflectance (from {report.noise_source})",
-        "illuminants": ", ".join(report.illuminants) or "none (camera channels)",
+        "noise σ": f"{report.noise_sigma:.2g} reflectance (from {report.noise_source})",
+        "illuminants": ", ".join(report.illuminants) or ("none" if report.spectral else "none (camera channels)"),
         "observer": f"{report.observer}°",
         "thresholds": thresholds,
         "data": '<a href="validation.json">validation.json</a>',
     }
-    rows = "\n".join(f"<dt>{html.escape(k)}</dt><dd>{v if k == 'data' else html.escape(v)}</dd>"
-                     for k, v in items.items())
-    return (f"<h1>{html.escape(m.name)} {_badge(report.verdict)}</h1>\n<dl>\n{rows}\n</dl>")
+    rows = "\n".join(
+        f"<dt>{html.escape(k)}</dt><dd>{v if k == 'data' else html.escape(v)}</dd>" for k, v in items.items()
+    )
+    return f"<h1>{html.escape(m.name)} {_badge(report.verdict)}</h1>\n<dl>\n{rows}\n</dl>"
 
 
 def _findings_table(report: SampleReport) -> str:
     if not report.findings:
         return "<p>No findings: every check passed.</p>"
     ordered = sorted(report.findings, key=lambda f: -SEVERITIES.index(f.severity))
-    rows = [f'<tr class="{f.severity}"><td>{_badge(f.severity)}</td><td><code>{html.escape(f.code)}</code></td>'
-            f"<td>{html.escape(f.message)}</td><td>{html.escape(f.measurement or '—')}</td>"
-            f"<td>{html.escape(_where(report, f.where)) or '—'}</td></tr>" for f in ordered]
+    rows = [
+        f'<tr class="{f.severity}"><td>{_badge(f.severity)}</td><td><code>{html.escape(f.code)}</code></td>'
+        f"<td>{html.escape(f.message)}</td><td>{html.escape(f.measurement or '—')}</td>"
+        f"<td>{html.escape(_where(report, f.where)) or '—'}</td></tr>"
+        for f in ordered
+    ]
     return _table(["severity", "code", "message", "measurement", "where"], rows)
 
 
 def _measurement_table(report: SampleReport) -> str:
     t = report.thresholds
     unit = " nm" if report.spectral else ""
-    header = ["id", "role", "over", "thickness (µm)", "RMSE", "max |error|", "at",
-              *(f"ΔE00 {name}" for name in report.illuminants), "repeats", "repeat spread"]
+    header = [
+        "id",
+        "role",
+        "over",
+        "thickness (µm)",
+        "RMSE",
+        "max |error|",
+        "at",
+        *(f"ΔE00 {name}" for name in report.illuminants),
+        "repeats",
+        "repeat spread",
+    ]
     rows = []
     for c in report.measurements:
-        row_level = max((f.severity for f in report.findings if f.measurement == c.id),
-                        key=SEVERITIES.index, default="pass")
+        row_level = max(
+            (f.severity for f in report.findings if f.measurement == c.id), key=SEVERITIES.index, default="pass"
+        )
         at = report.labels[c.max_abs_index]
-        cells = [html.escape(c.id), c.role, html.escape(c.over or "—"),
-                 "masstone" if math.isinf(c.thickness_mm) else f"{c.thickness_mm * 1000:g}"]
+        cells = [
+            html.escape(c.id),
+            c.role,
+            html.escape(c.over or "—"),
+            "masstone" if math.isinf(c.thickness_mm) else f"{c.thickness_mm * 1000:g}",
+        ]
         cells = [f"<td>{cell}</td>" for cell in cells]
         cells.append(f'<td class="num {_level(c.rmse, t.rmse_warn, t.rmse_fail)}">{c.rmse:.4f}</td>')
         cells.append(f'<td class="num">{abs(c.residuals[c.max_abs_index]):.4f}</td>')
@@ -304,7 +355,8 @@ def render_sample_html(report: SampleReport) -> str:
     name = report.material.name
     parts = [
         _header(report),
-        "<h2>Findings</h2>", _findings_table(report),
+        "<h2>Findings</h2>",
+        _findings_table(report),
         "<h2>Measurements</h2>",
         f"<p>Cells over the warn thresholds are amber, over the fail thresholds red (RMSE "
         f"{report.thresholds.rmse_warn:g} / {report.thresholds.rmse_fail:g}, ΔE00 "
@@ -312,18 +364,30 @@ def render_sample_html(report: SampleReport) -> str:
         "a row's left edge shows the worst finding about it.</p>",
         _measurement_table(report),
         "<h2>Measured vs predicted</h2>",
-        _png_img(draw_spectra(report), "plot-spectra", f"{name}: measured and predicted reflectance of every "
-                 "measurement, with residuals"),
+        _png_img(
+            draw_spectra(report),
+            "plot-spectra",
+            f"{name}: measured and predicted reflectance of every measurement, with residuals",
+        ),
         "<h2>K and S</h2>",
         _png_img(draw_ks(report), "plot-ks", f"{name}: K and S per mm with standard-error bands"),
     ]
-    if report.spectral:
-        parts += ["<h2>Colour swatches</h2>",
-                  _png_img(draw_swatches(report), "plot-swatches", f"{name}: measured and predicted colour "
-                           f"of every measurement under {report.illuminants[0]}")]
+    if report.illuminants:
+        parts += [
+            "<h2>Colour swatches</h2>",
+            _png_img(
+                draw_swatches(report),
+                "plot-swatches",
+                f"{name}: measured and predicted colour of every measurement under {report.illuminants[0]}",
+            ),
+        ]
+    elif report.spectral:
+        parts.append('<p class="note">No illuminant was chosen, so no colour differences or swatches.</p>')
     else:
-        parts.append('<p class="note">Camera-channel material: colour differences (ΔE 2000) and colour '
-                     "swatches need spectra, so they are not computed for this sample.</p>")
+        parts.append(
+            '<p class="note">Camera-channel material: colour differences (ΔE 2000) and colour '
+            "swatches need spectra, so they are not computed for this sample.</p>"
+        )
     return _page(f"kmpipe validation: {name}", "\n".join(parts))
 
 
@@ -349,16 +413,21 @@ def write_index(entries: list[tuple[SampleReport, Path]], out_dir: Path) -> Path
         link = Path(os.path.relpath(Path(page).resolve(), out_dir.resolve())).as_posix()
         doc = report_to_dict(report)
         worst = doc["worst_delta_e_2000"]
-        summary.append({key: doc[key] for key in ("sample", "product", "verdict", "worst_delta_e_2000", "reasons")}
-                       | {"report": link})
-        rows.append(f'<tr class="{report.verdict}"><td>{html.escape(report.material.name)}</td>'
-                    f"<td>{html.escape(report.material.product)}</td><td>{_badge(report.verdict)}</td>"
-                    f'<td class="num">{"—" if worst is None else f"{worst:.2f}"}</td>'
-                    f"<td>{html.escape(', '.join(report.reasons)) or '—'}</td>"
-                    f'<td><a href="{html.escape(quote(link))}">{html.escape(link)}</a></td></tr>')
+        summary.append(
+            {key: doc[key] for key in ("sample", "product", "verdict", "worst_delta_e_2000", "reasons")}
+            | {"report": link}
+        )
+        rows.append(
+            f'<tr class="{report.verdict}"><td>{html.escape(report.material.name)}</td>'
+            f"<td>{html.escape(report.material.product)}</td><td>{_badge(report.verdict)}</td>"
+            f'<td class="num">{"—" if worst is None else f"{worst:.2f}"}</td>'
+            f"<td>{html.escape(', '.join(report.reasons)) or '—'}</td>"
+            f'<td><a href="{html.escape(quote(link))}">{html.escape(link)}</a></td></tr>'
+        )
     counts = ", ".join(f"{sum(e[0].verdict == v for e in entries)} {v}" for v in reversed(SEVERITIES))
-    body = (f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n"
-            + _table(["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows))
+    body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n" + _table(
+        ["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows
+    )
     _write_atomically(out_dir / "summary.json", json.dumps(summary, indent=1, allow_nan=False) + "\n")
     path = out_dir / "index.html"
     _write_atomically(path, _page("kmpipe validation summary", body))

@@ -28,6 +28,9 @@ from kmpipe.sample import Sample, file_sha256, load_sample
 from kmpipe.saunderson import saunderson_forward, saunderson_inverse
 
 FORMAT = "kmpipe-validation/1"
+
+#: Smallest noise level (reflectance) the checks assume: below it, differences are rounding, not readings.
+MIN_NOISE = 2e-4
 SEVERITIES = ("pass", "warn", "fail")
 
 #: Every check: reason code -> (severity, what it means for a technician).
@@ -83,27 +86,38 @@ class Thresholds:
             raise InputError("the validation config file does not exist", path=path) from None
         except tomllib.TOMLDecodeError as err:
             raise InputError(f"not valid TOML: {err}", path=path) from None
-        table = data.get("thresholds", {})
-        known = {f.name for f in fields(cls)}
-        values = {}
-        for key, value in table.items():
+        extra = sorted(set(data) - {"thresholds"})
+        if extra:
+            raise InputError("unknown table or key; the file holds one [thresholds] table", path=path, field=extra[0])
+        table = data.get("thresholds")
+        if not isinstance(table, dict):
+            raise InputError("expected a [thresholds] table", path=path, field="thresholds")
+        return cls().updated(_source=path, **table)
+
+    def updated(self, _source: Path | None = None, **values) -> Thresholds:
+        """A copy with the given (non-None) values, each checked: a known name, a positive finite number,
+        warn levels at most the fail levels, ks_min below ks_max. ``_source``: the config file, for messages."""
+        known = {f.name for f in fields(self)}
+        prefix = "thresholds." if _source is not None else ""
+        given = {}
+        for key, value in values.items():
+            if value is None:
+                continue
             if key not in known:
                 raise InputError(
-                    f"unknown threshold; expected one of {', '.join(sorted(known))}",
-                    path=path,
-                    field=f"thresholds.{key}",
+                    f"unknown threshold; expected one of {', '.join(sorted(known))}", path=_source, field=prefix + key
                 )
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-                raise InputError("expected a positive number", path=path, field=f"thresholds.{key}")
-            values[key] = float(value)
-        return cls().updated(**values)
-
-    def updated(self, **values) -> Thresholds:
-        """A copy with the given (non-None) values, checked: warn levels must not exceed fail levels."""
-        out = replace(self, **{k: v for k, v in values.items() if v is not None})
-        for warn, fail in (("delta_e_warn", "delta_e_fail"), ("rmse_warn", "rmse_fail")):
-            if getattr(out, warn) > getattr(out, fail):
-                raise InputError(f"{warn} ({getattr(out, warn)}) exceeds {fail} ({getattr(out, fail)})", field=warn)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not (0.0 < value < math.inf):
+                raise InputError(f"expected a positive number, got {value!r}", path=_source, field=prefix + key)
+            given[key] = float(value)
+        out = replace(self, **given)
+        for low, high in (("delta_e_warn", "delta_e_fail"), ("rmse_warn", "rmse_fail"), ("ks_min", "ks_max")):
+            if getattr(out, low) > getattr(out, high):
+                raise InputError(
+                    f"{low} ({getattr(out, low):g}) exceeds {high} ({getattr(out, high):g})",
+                    path=_source,
+                    field=prefix + low,
+                )
         return out
 
 
@@ -185,7 +199,7 @@ class SampleReport:
 # --- helpers ---------------------------------------------------------------------------------------------
 
 
-def _ranges(labels: list, mask: np.ndarray) -> str:
+def format_ranges(labels: list, mask: np.ndarray) -> str:
     """'380-500, 620 nm' for spectral labels, 'R, G' for channels, from a boolean mask."""
     picked = [labels[i] for i in np.flatnonzero(mask)]
     if not picked:
@@ -218,6 +232,61 @@ def _group_name(key: tuple) -> str:
     if role == "masstone":
         return "masstone"
     return f"{thickness * 1000:g} um over {over}"
+
+
+#: Wavelengths (grid points) over which the noise level is taken as locally constant.
+NOISE_WINDOW = 11
+
+
+def _windowed(values: np.ndarray, statistic, window: int = NOISE_WINDOW, offset: int = 0) -> np.ndarray:
+    """``statistic`` (e.g. np.median) of (m, k) values over windows of ``window`` points along the last axis,
+    one per output point: centred on it, shifted inwards at the ends (never padded, which would let one value
+    stand for the whole window there). Value j belongs to output point j + ``offset``; n = k + 2 offset."""
+    width = min(window, values.shape[1])
+    per_start = statistic(np.lib.stride_tricks.sliding_window_view(values, width, axis=1), axis=-1)
+    n = values.shape[1] + 2 * offset
+    start = np.clip(np.arange(n) - offset - width // 2, 0, per_start.shape[1] - 1)
+    return per_start[:, start]
+
+
+def _roughness_noise(readings: np.ndarray, window: int = NOISE_WINDOW) -> np.ndarray:
+    """Noise of each reading at each wavelength (m, n), from the reading's own roughness: model-free.
+
+    For white noise of standard deviation sigma, d2 = y[i-1] - 2 y[i] + y[i+1] has standard deviation
+    sqrt(6) sigma. The median of |d2| / 0.6745 over a window of ``window`` points estimates it robustly
+    (the few large second differences at the steep edge of a smooth spectrum do not count) and locally, so
+    noise that grows with the signal, as a spectroradiometer's does, is followed across the spectrum.
+    """
+    m, n = readings.shape
+    if n < 3:
+        return np.zeros((m, n))
+    d2 = np.abs(readings[:, 2:] - 2.0 * readings[:, 1:-1] + readings[:, :-2])  # centred on points 1 .. n-2
+    return _windowed(d2, np.median, window, offset=1) / 0.6745 / math.sqrt(6.0)
+
+
+def _noise_map(sample: Sample, groups: dict[tuple, list[int]]) -> tuple[np.ndarray, str]:
+    """Noise (standard deviation, reflectance) of every reading at every wavelength, and where it came from.
+
+    Readings with repeats: the repeats' standard deviation, smoothed over `NOISE_WINDOW` points; others:
+    :func:`_roughness_noise`. Never from the fit, whose residuals a faulty measurement would inflate.
+    Floored at `MIN_NOISE`.
+    """
+    sigma = _roughness_noise(sample.readings)
+    repeated = 0
+    for members in groups.values():
+        if len(members) > 1:
+            sd = sample.readings[members].std(axis=0, ddof=1)
+            sigma[members] = np.sqrt(_windowed(sd[None, :] ** 2, np.mean))[0]
+            repeated += len(members)
+    total = len(sample.measurements)
+    floor = f"; floored at {MIN_NOISE:g}" if np.median(sigma) < MIN_NOISE else ""
+    if repeated == total:
+        source = "spread of repeats"
+    elif repeated:
+        source = "spread of repeats; roughness of single readings"
+    else:
+        source = "roughness of the readings (local second differences)"
+    return np.maximum(sigma, MIN_NOISE), source + floor
 
 
 def _runs_z(residuals: np.ndarray) -> float:
@@ -258,9 +327,9 @@ def _check_coefficients(material: Material, labels, thresholds: Thresholds) -> l
     if np.any(zero_k | zero_s):
         parts = []
         if zero_k.any():
-            parts.append(f"K is 0 at {_ranges(labels, zero_k)}")
+            parts.append(f"K is 0 at {format_ranges(labels, zero_k)}")
         if zero_s.any():
-            parts.append(f"S is 0 at {_ranges(labels, zero_s)}")
+            parts.append(f"S is 0 at {format_ranges(labels, zero_s)}")
         out.append(
             Finding(
                 "k_or_s_not_positive",
@@ -286,7 +355,7 @@ def _check_coefficients(material: Material, labels, thresholds: Thresholds) -> l
     ):
         mask = (material.flags & np.uint8(flag)) != 0
         if mask.any():
-            out.append(Finding(code, "warn", text.format(_ranges(labels, mask)), _where(labels, mask)))
+            out.append(Finding(code, "warn", text.format(format_ranges(labels, mask)), _where(labels, mask)))
     with np.errstate(divide="ignore", invalid="ignore"):
         ks = material.ks_ratio
     extreme = ((ks > thresholds.ks_max) | (ks < thresholds.ks_min)) & ~(zero_k | zero_s)
@@ -295,7 +364,7 @@ def _check_coefficients(material: Material, labels, thresholds: Thresholds) -> l
             Finding(
                 "extreme_ks",
                 "warn",
-                f"K/S is outside [{thresholds.ks_min:g}, {thresholds.ks_max:g}] at {_ranges(labels, extreme)} "
+                f"K/S is outside [{thresholds.ks_min:g}, {thresholds.ks_max:g}] at {format_ranges(labels, extreme)} "
                 f"(from {np.nanmin(ks[extreme]):.3g} to {np.nanmax(ks[extreme]):.3g}): a nearly black or "
                 "nearly white material, where small reading errors change K/S a lot",
                 _where(labels, extreme),
@@ -312,7 +381,7 @@ def _check_coefficients(material: Material, labels, thresholds: Thresholds) -> l
                     "poor_conditioning",
                     "warn",
                     f"the standard error of K or S exceeds {thresholds.relative_stderr:.0%} of its value at "
-                    f"{_ranges(labels, poor)}: these measurements barely determine K and S there "
+                    f"{format_ranges(labels, poor)}: these measurements barely determine K and S there "
                     "(add a film of another thickness or over another backing)",
                     _where(labels, poor),
                 )
@@ -332,7 +401,7 @@ def _check_readings(sample: Sample, labels) -> list[Finding]:
                     "reflectance_out_of_range",
                     "fail",
                     f"{name} reads {values[bad].max() if (values > 1).any() else values[bad].min():.4g} "
-                    f"at {_ranges(labels, bad)}, outside [0, 1]: check the white reference, its certified "
+                    f"at {format_ranges(labels, bad)}, outside [0, 1]: check the white reference, its certified "
                     "curve and the dark reading",
                     _where(labels, bad),
                     name,
@@ -341,11 +410,18 @@ def _check_readings(sample: Sample, labels) -> list[Finding]:
     return out
 
 
-def _check_thickness_series(sample: Sample, material: Material, labels, sigma: float, factor: float) -> list[Finding]:
+def _check_thickness_series(
+    sample: Sample, material: Material, labels, sigma: np.ndarray, factor: float
+) -> list[Finding]:
     """Over each backing, a thicker film must read closer to the masstone (R_inf) than a thinner one."""
     out = []
     masstones = [i for i, m in enumerate(sample.measurements) if m.role == "masstone"]
-    R_inf = sample.readings[masstones].mean(axis=0) if masstones else reflectance_infinite(material.K, material.S)
+    if masstones:
+        R_inf = sample.readings[masstones].mean(axis=0)
+    else:  # as it would read, like the backings: with surface reflection when the fit modelled it
+        R_inf = reflectance_infinite(material.K, material.S)
+        if material.saunderson is not None:
+            R_inf = saunderson_forward(R_inf, *material.saunderson)
     for backing, background in sample.backings.items():
         by_thickness: dict[float, list[int]] = {}
         for i, m in enumerate(sample.measurements):
@@ -356,8 +432,11 @@ def _check_thickness_series(sample: Sample, material: Material, labels, sigma: f
         for (thin, i_thin), (thick, i_thick) in itertools.pairwise(series):
             R_thin = sample.readings[i_thin].mean(axis=0)
             R_thick = sample.readings[i_thick].mean(axis=0)
-            noise = factor * sigma * math.sqrt(1.0 / len(i_thin) + 1.0 / len(i_thick))
-            wrong = toward * (R_thick - R_thin) < -noise
+            noise = factor * np.sqrt(
+                np.mean(sigma[i_thin] ** 2, axis=0) / len(i_thin) + np.mean(sigma[i_thick] ** 2, axis=0) / len(i_thick)
+            )
+            # Where the backing reads like the masstone, a film cannot move it either way: no direction to check.
+            wrong = (toward * (R_thick - R_thin) < -noise) & (np.abs(R_inf - background) > noise)
             if wrong.any():
                 direction = "darker" if np.mean(toward[wrong]) > 0 else "lighter"
                 out.append(
@@ -365,16 +444,15 @@ def _check_thickness_series(sample: Sample, material: Material, labels, sigma: f
                         "thickness_not_monotone",
                         "fail",
                         f"over {backing}, the {thick * 1000:g} um film reads {direction} than the "
-                        f"{thin * 1000:g} um film at {_ranges(labels, wrong)}, although a thicker film must come "
-                        "closer to the masstone: the film is probably uneven, or the thicknesses are wrong "
-                        "(as in the thesis's sample F2)",
+                        f"{thin * 1000:g} um film at {format_ranges(labels, wrong)}, although a thicker film must come "
+                        "closer to the masstone: the film is probably uneven, or the thicknesses are wrong",
                         _where(labels, wrong),
                     )
                 )
     return out
 
 
-def _check_masstones(sample: Sample, material: Material, labels, sigma: float, factor: float) -> list[Finding]:
+def _check_masstones(sample: Sample, material: Material, labels, sigma: np.ndarray, factor: float) -> list[Finding]:
     """A masstone of declared thickness must hide the darkest backing to within the noise."""
     out = []
     if not sample.backings:
@@ -383,41 +461,56 @@ def _check_masstones(sample: Sample, material: Material, labels, sigma: float, f
     G = sample.backings[darkest]
     if material.saunderson is not None:
         G = saunderson_inverse(G, *material.saunderson)
-    for m in sample.measurements:
-        if m.role != "masstone" or m.declared_mm is None:
-            continue
+    declared: dict[float, list[int]] = {}  # repeats of one masstone share a finding
+    for i, m in enumerate(sample.measurements):
+        if m.role == "masstone" and m.declared_mm is not None:
+            declared.setdefault(m.declared_mm, []).append(i)
+    for thickness, rows in declared.items():
+        ids = [sample.measurements[i].id for i in rows]
         R_inf = reflectance_infinite(material.K, material.S)
-        R_thin = reflectance_over_background(material.K, material.S, m.declared_mm, G)
+        R_thin = reflectance_over_background(material.K, material.S, thickness, G)
         if material.saunderson is not None:
             R_inf, R_thin = (saunderson_forward(v, *material.saunderson) for v in (R_inf, R_thin))
-        see_through = np.abs(R_inf - R_thin) > factor * sigma
+        see_through = np.abs(R_inf - R_thin) > factor * np.sqrt(np.mean(sigma[rows] ** 2, axis=0))
         if see_through.any():
             out.append(
                 Finding(
                     "masstone_not_opaque",
                     "fail",
-                    f"at {m.declared_mm * 1000:g} um the masstone would still show a {darkest} backing at "
-                    f"{_ranges(labels, see_through)} (by up to {np.max(np.abs(R_inf - R_thin)):.3f} in "
+                    f"at {thickness * 1000:g} um the masstone would still show a {darkest} backing at "
+                    f"{format_ranges(labels, see_through)} (by up to {np.max(np.abs(R_inf - R_thin)):.3f} in "
                     "reflectance): it is not R_inf there; draw it thicker",
                     _where(labels, see_through),
-                    m.id,
+                    ", ".join(ids),
                 )
             )
     return out
 
 
-def _check_residuals(checks: list[MeasurementCheck], labels, thresholds: Thresholds) -> list[Finding]:
+def _check_residuals(
+    checks: list[MeasurementCheck], labels, thresholds: Thresholds, sigma: np.ndarray, opaque: np.ndarray
+) -> list[Finding]:
+    """Structure (runs test on residual signs, outside opaque wavelengths, larger than the noise) and size
+    against the repeat spread."""
     out = []
-    for c in checks:
-        if len(labels) >= 10 and _runs_z(c.residuals) < -thresholds.runs_z:
-            run = _longest_run(c.residuals)
-            sign = "above" if np.mean(c.residuals[run]) > 0 else "below"
+    keep = ~opaque
+    for k, c in enumerate(checks):
+        residuals = np.where(keep, c.residuals, 0.0)
+        if keep.sum() >= 10 and _runs_z(c.residuals[keep]) < -thresholds.runs_z:
+            run = _longest_run(residuals) & keep
+            # The bias over the run must stand out from the noise of a mean of that many readings (this
+            # keeps quiet on residuals at rounding level, e.g. the lower-bound K, S of opaque films).
+            bias = abs(float(np.mean(residuals[run])))
+            if bias <= 2.0 * float(np.sqrt(np.mean(sigma[k][run] ** 2) / run.sum())):
+                continue
+            sign = "above" if np.mean(residuals[run]) > 0 else "below"
             out.append(
                 Finding(
                     "structured_residuals",
                     "warn",
-                    f"{c.id}: the prediction stays {sign} the measurement over {_ranges(labels, run)} (too few sign "
-                    "changes for noise): a bias the model does not capture (surface reflection? Try --saunderson)",
+                    f"{c.id}: the prediction stays {sign} the measurement over {format_ranges(labels, run)} "
+                    "(too few sign changes for noise): a bias the model does not capture "
+                    "(surface reflection? Try --saunderson)",
                     _where(labels, run),
                     c.id,
                 )
@@ -501,7 +594,7 @@ def validate_material(
                 path=material_path,
                 field="provenance.manifest",
             )
-    manifest = Path(manifest)
+    manifest = Path(manifest).resolve()
     changed = _changed_inputs(material, material_path)
     sample = load_sample(manifest, grid=material.wavelengths)
     labels = material.labels
@@ -548,12 +641,7 @@ def validate_material(
                 repeat_spread=spreads.get(key),
             )
         )
-    if spreads:
-        sigma = float(np.sqrt(np.mean(np.square(list(spreads.values())))))
-        source = "repeat spread"
-    else:
-        sigma = float(np.sqrt(np.mean((predicted - sample.readings) ** 2)))
-        source = "fit residuals"
+    sigma, source = _noise_map(sample, groups)
 
     findings: list[Finding] = []
     if changed:
@@ -570,7 +658,7 @@ def validate_material(
     findings += _check_readings(sample, labels)
     findings += _check_thickness_series(sample, material, labels, sigma, thresholds.noise_factor)
     findings += _check_masstones(sample, material, labels, sigma, thresholds.noise_factor)
-    findings += _check_residuals(checks, labels, thresholds)
+    findings += _check_residuals(checks, labels, thresholds, sigma, (material.flags & np.uint8(Flag.OPAQUE)) != 0)
     return SampleReport(
         material_path=material_path,
         manifest_path=manifest,
@@ -582,7 +670,7 @@ def validate_material(
         thresholds=thresholds,
         measurements=tuple(checks),
         backings=sample.backings,
-        noise_sigma=sigma,
+        noise_sigma=float(np.median(sigma)),
         noise_source=source,
         findings=tuple(findings),
         changed_inputs=tuple(changed),

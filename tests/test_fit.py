@@ -35,8 +35,13 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "recipes" / "samples"
 PIGMENTS = ROOT.parent / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
 PER_MM = 60.0  # the RIT table's S is relative; x60 gives per-mm values typical of a foundation
-FOUNDATION = {"TitaniumWhite": 1.0, "HansaYellowOpaque": 0.3, "CadmiumOrange": 0.25, "PyrroleRed": 0.05,
-              "BoneBlack": 0.25}
+FOUNDATION = {
+    "TitaniumWhite": 1.0,
+    "HansaYellowOpaque": 0.3,
+    "CadmiumOrange": 0.25,
+    "PyrroleRed": 0.05,
+    "BoneBlack": 0.25,
+}
 LIPSTICK = {"PyrroleRed": 1.0, "QuinacridoneMagenta": 0.15, "TitaniumWhite": 0.05}
 SAUNDERSON = (0.04, 0.6)
 
@@ -106,18 +111,17 @@ def write_sample(
         card_values = saunderson_forward(card_values, *saunderson)
     if noise:
         readings = readings + rng.normal(0.0, noise, readings.shape)
-    write_spectra_csv(SpectralTable(wavelengths, None, ("black", "white"), card_values, REFLECTANCE),
-                      folder / "cards.csv")
-    write_spectra_csv(SpectralTable(wavelengths, None, tuple(columns), readings, REFLECTANCE),
-                      folder / "readings.csv")
+    write_spectra_csv(
+        SpectralTable(wavelengths, None, ("black", "white"), card_values, REFLECTANCE), folder / "cards.csv"
+    )
+    write_spectra_csv(SpectralTable(wavelengths, None, tuple(columns), readings, REFLECTANCE), folder / "readings.csv")
     text = f'[sample]\nname = "{name}"\nproduct = "simulated"\nkind = "test"\n\n{fit_table}'
     for card in ("black", "white"):
         text += f'\n[[backing]]\nname = "{card}"\nfile = "cards.csv"\ncolumn = "{card}"\n'
     if masstone:
         text += '\n[[masstone]]\nfile = "readings.csv"\ncolumn = "masstone"\n'
     for column, over, um in films:
-        text += (f'\n[[film]]\nfile = "readings.csv"\ncolumn = "{column}"\nover = "{over}"\n'
-                 f'thickness = "{um} um"\n')
+        text += f'\n[[film]]\nfile = "readings.csv"\ncolumn = "{column}"\nover = "{over}"\nthickness = "{um} um"\n'
     path = folder / "manifest.toml"
     path.write_text(text, encoding="utf-8")
     return path
@@ -196,8 +200,7 @@ def test_repeats_are_several_entries_with_the_same_film(tmp_path, foundation):
     wavelengths, K, S = foundation
     manifest = write_sample(tmp_path / "s", wavelengths, K, S)
     text = manifest.read_text(encoding="utf-8")
-    repeat = ('\n[[film]]\nfile = "readings.csv"\ncolumn = "film_15um_over_black"\nover = "black"\n'
-              'thickness = "15 um"\n')
+    repeat = '\n[[film]]\nfile = "readings.csv"\ncolumn = "film_15um_over_black"\nover = "black"\nthickness = "15 um"\n'
     manifest.write_text(text + repeat, encoding="utf-8")
     sample = load_sample(manifest)
     assert len(sample.measurements) == 6
@@ -279,8 +282,12 @@ def test_bundled_materials_are_strict_json_with_true_provenance(bundled):
         doc = strict_json(out / f"{folder.name}.json")
         provenance = doc["provenance"]
         inputs = {(out / item["path"]).resolve(): item["sha256"] for item in provenance["inputs"]}
-        expected = {folder / "manifest.toml", folder / f"{folder.name}.csv", folder / "backings.csv",
-                    folder / "white.csv"}
+        expected = {
+            folder / "manifest.toml",
+            folder / f"{folder.name}.csv",
+            folder / "backings.csv",
+            folder / "white.csv",
+        }
         assert set(inputs) == {p.resolve() for p in expected}
         for path, digest in inputs.items():
             assert digest == hashlib.sha256(path.read_bytes()).hexdigest()
@@ -305,8 +312,7 @@ def test_material_round_trip_is_exact(tmp_path, foundation):
     flags[3] = 2 | 8
     flags[4] = 4
     flags[10] = 1 | 2 | 4 | 8
-    material = dataclasses.replace(material, K_stderr=K_se, S_stderr=S_se, flags=flags,
-                                   provenance={"note": "test"})
+    material = dataclasses.replace(material, K_stderr=K_se, S_stderr=S_se, flags=flags, provenance={"note": "test"})
     path = tmp_path / "m.json"
     write_material(material, path)
     doc = strict_json(path)
@@ -335,8 +341,7 @@ def test_exactly_determined_fit_has_null_standard_errors(tmp_path, capsys, found
     """One thickness over two cards, no masstone: two readings, two unknowns, no residual to show noise.
 
     K and S come back exactly, the standard errors are null (unknown), and nothing is flagged: the film
-    (S X ~ 1) is far from opaque. Expected to pass for lsq after the fix: today fit_joint turns the unknown
-    errors into inf and then flags every wavelength 'opaque'.
+    (S X ~ 1) is far from opaque.
     """
     wavelengths, K, S = foundation
     manifest = write_sample(tmp_path / "s", wavelengths, K, S, thicknesses_um=(20,), masstone=False)
@@ -368,11 +373,7 @@ def cli_status(capsys, args: list[str]) -> tuple[int, str]:
     "option", [["--noise=-0.01"], ["--noise=0"], ["--noise=nan"], ["--noise=inf"], ["--smoothness=-1"]]
 )
 def test_fit_options_are_checked_like_the_manifest_fields(tmp_path, capsys, foundation, option):
-    """The manifest refuses noise outside (0, 0.5) and negative smoothness; the options must refuse them too.
-
-    Expected to pass after the fix: today --noise=-0.01 writes negative standard errors (exit 0),
-    --noise=nan ends in an internal error (exit 70), --smoothness=-1 is accepted.
-    """
+    """The manifest refuses noise outside (0, 0.5) and negative smoothness; the options must refuse them too."""
     wavelengths, K, S = foundation
     manifest = write_sample(tmp_path / "s", wavelengths, K, S)
     out = tmp_path / "m.json"
@@ -385,8 +386,7 @@ def test_fit_options_are_checked_like_the_manifest_fields(tmp_path, capsys, foun
 def test_two_samples_with_one_name_do_not_overwrite_each_other(tmp_path, capsys, foundation):
     """Two manifests whose [sample] name is the same would both be written to OUT/NAME.json.
 
-    The second would silently replace the first; kmpipe must refuse (exit 2) instead. Expected to pass
-    after the fix.
+    The second would silently replace the first; kmpipe must refuse (exit 2) instead.
     """
     wavelengths, K, S = foundation
     first = write_sample(tmp_path / "a", wavelengths, K, S, name="same")
@@ -483,12 +483,14 @@ def test_grid_beyond_the_data_is_refused(tmp_path, capsys, foundation, grid):
 def test_ingest_gives_back_the_simulated_reflectance(tmp_path, capsys, foundation, with_dark):
     wavelengths, K, S = foundation
     cards = backings(wavelengths)
-    reflectance = np.array([
-        reflectance_infinite(K, S),
-        reflectance_over_background(K, S, 0.015, cards["black"]),
-        reflectance_over_background(K, S, 0.015, cards["white"]),
-        cards["white"],
-    ])
+    reflectance = np.array(
+        [
+            reflectance_infinite(K, S),
+            reflectance_over_background(K, S, 0.015, cards["black"]),
+            reflectance_over_background(K, S, 0.015, cards["white"]),
+            cards["white"],
+        ]
+    )
     columns = ("masstone", "film_over_black", "film_over_white", "white_card")
     lamp = 0.01 * (1.0 + 0.5 * np.sin(wavelengths / 50.0))  # radiance of a perfect white, W sr-1 m-2 nm-1
     dark = 2e-6 * (1.0 + 0.1 * np.cos(wavelengths / 30.0)) if with_dark else np.zeros(wavelengths.size)
@@ -497,10 +499,19 @@ def test_ingest_gives_back_the_simulated_reflectance(tmp_path, capsys, foundatio
     radiance = lamp * reflectance + dark
     meta = {"quantity": "radiance", "units": "W sr-1 m-2 nm-1", "instrument": "simulated"}
     write_spectra_csv(SpectralTable(wavelengths, None, columns, radiance, meta), tmp_path / "radiance.csv")
-    write_spectra_csv(SpectralTable(wavelengths, None, ("baso4", "dark"), np.array([white, dark]), meta),
-                      tmp_path / "white.csv")
-    args = ["ingest", str(tmp_path / "radiance.csv"), "--white", f"{tmp_path / 'white.csv'}:baso4",
-            "--certified", "builtin:baso4", "-o", str(tmp_path / "reflectance.csv")]
+    write_spectra_csv(
+        SpectralTable(wavelengths, None, ("baso4", "dark"), np.array([white, dark]), meta), tmp_path / "white.csv"
+    )
+    args = [
+        "ingest",
+        str(tmp_path / "radiance.csv"),
+        "--white",
+        f"{tmp_path / 'white.csv'}:baso4",
+        "--certified",
+        "builtin:baso4",
+        "-o",
+        str(tmp_path / "reflectance.csv"),
+    ]
     if with_dark:
         args += ["--dark", f"{tmp_path / 'white.csv'}:dark"]
     status = cli.main(args)
@@ -516,8 +527,10 @@ def test_ingest_gives_back_the_simulated_reflectance(tmp_path, capsys, foundatio
 
 def test_ingest_refuses_reflectance(tmp_path, capsys, foundation):
     wavelengths, K, S = foundation
-    write_spectra_csv(SpectralTable(wavelengths, None, ("masstone",), reflectance_infinite(K, S)[None, :],
-                                    REFLECTANCE), tmp_path / "already.csv")
+    write_spectra_csv(
+        SpectralTable(wavelengths, None, ("masstone",), reflectance_infinite(K, S)[None, :], REFLECTANCE),
+        tmp_path / "already.csv",
+    )
     already = tmp_path / "already.csv"
     out = tmp_path / "out.csv"
     status = cli.main(["ingest", str(already), "--white", f"{already}:masstone", "-o", str(out)])
@@ -585,11 +598,14 @@ def test_joint_fit_derivatives_match_mpmath(K, saunderson):
     with mpmath.workdps(precision_for(K, S)):
         for i, (X, Gi) in enumerate(zip(thickness, G, strict=True)):
             if math.isinf(X):
+
                 def reading(k, s):
                     return surface(textbook_masstone(k, s), saunderson)
             else:
+
                 def reading(k, s, X=X, Gi=Gi):
                     return surface(textbook_film(k, s, X, Gi), saunderson)
+
             want = {
                 "R": reading(K, S),
                 "dR/dK": derivative(lambda k: reading(k, S), K),
@@ -612,11 +628,11 @@ def test_joint_fit_derivatives_match_mpmath(K, saunderson):
 def test_masstone_slope_at_k_zero_is_steep_not_flat():
     """R_inf = 1 - sqrt(2 K / S) + ... falls with infinite slope at K = 0.
 
-    The joint-fit docstring promises a huge but finite dR/dK there (p floored at 1e-150). Expected to pass
-    after the fix: today dR/dp is 0 at p = 0 (sign(0) = 0), so dR/dK comes out 0, the wrong limit.
+    The joint-fit docstring promises a huge but finite dR/dK there (p floored at 1e-150).
     """
-    model, p, r = _Model.at(np.array([0.0]), np.array([50.0]), np.array([np.inf, 0.02]),
-                            np.array([[0.0], [0.85]]), None)
+    model, p, r = _Model.at(
+        np.array([0.0]), np.array([50.0]), np.array([np.inf, 0.02]), np.array([[0.0], [0.85]]), None
+    )
     R, _, _, dR_dK, _ = model.evaluate(p, r)
     assert R[0, 0] == 1.0
     with mpmath.workdps(precision_for(1e-200, 50.0)):
@@ -640,6 +656,7 @@ def test_second_difference_penalty_gradient():
         exact = [mpmath.mpf(float(x)) for x in v]
         assert abs(value - penalty(exact)) <= 1e-12 * abs(penalty(exact))
         for j in range(v.size):
+
             def along(t, j=j):
                 moved = list(exact)
                 moved[j] = t

@@ -293,9 +293,6 @@ def test_bad_grid(tmp_path, grid):
 
 def test_grid_that_is_not_a_whole_number_of_steps(tmp_path):
     """400:700:7 cannot be built (300 nm is not a multiple of 7 nm): refused by the manifest, with its line.
-
-    Expected to pass once fixed: today the manifest accepts it and loading the sample fails later with an
-    InputError that names neither the manifest nor the line (field 'stop_nm').
     """
     text = replace(GOOD, 'grid = "380:780:5"', 'grid = "400:700:7"')
     err = refusal(tmp_path, text)
@@ -427,7 +424,7 @@ def test_cli_missing_csv_file(tmp_path, capsys):
     assert "backing.csv" in message
     assert str(folder / "manifest.toml") in message
     assert "backing[1].file" in message
-    # The line of `file = "backing.csv"` is known from the manifest text (expected to pass after the fix).
+    # The line of `file = "backing.csv"` is known from the manifest text.
     assert f"line {line_of(text, 'backing.csv')}" in message
 
 
@@ -443,7 +440,7 @@ def test_cli_missing_column(tmp_path, capsys):
     for column in ("masstone", "film_15um_over_black", "film_15um_over_white", "film_30um_over_black",
                    "film_30um_over_white"):
         assert column in message
-    # The line of `column = "film_30um_white"` is known (expected to pass after the fix).
+    # The line of `column = "film_30um_white"` is known.
     assert f"line {line_of(text, 'film_30um_white')}" in message
 
 
@@ -472,11 +469,7 @@ def test_cli_csv_holds_radiance_but_manifest_has_no_white(tmp_path, capsys):
 
 
 def test_cli_white_reading_zero_somewhere(tmp_path, capsys):
-    """A white standard reading 0 at 500 nm: the message must name the white standard's file and where.
-
-    Expected to pass after the fix: today it blames the first sample column (backings.csv:black) and
-    says "sample 25 along the wavelength axis" instead of 500 nm.
-    """
+    """A white standard reading 0 at 500 nm: the message must name the white standard's file and where."""
     folder = sample_folder(tmp_path)
     edit_csv(folder / "white.csv", "baso4", lambda w, v: 0.0 if w == 500.0 else v)
     status, err = fit_cli(capsys, folder)
@@ -489,8 +482,6 @@ def test_cli_white_reading_zero_somewhere(tmp_path, capsys):
 
 def test_cli_white_reading_ten_times_too_low(tmp_path, capsys):
     """The whole white reading scaled down 10x: refused, naming the white standard's file.
-
-    Expected to pass after the fix (today the message names backings.csv:white, the backing, as the source).
     """
     folder = sample_folder(tmp_path)
     edit_csv(folder / "white.csv", "baso4", lambda w, v: v / 10.0)
