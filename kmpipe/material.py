@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
 from kmpipe.flags import Flag, wavelengths_by_flag
 
@@ -131,17 +130,7 @@ def write_material(material: Material, path: str | Path) -> None:
     """Write the material's JSON atomically (a temporary file in the same folder, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(material_to_dict(material), indent=1, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomically(path, json.dumps(material_to_dict(material), indent=1, allow_nan=False) + "\n")
 
 
 def read_material(path: str | Path) -> Material:

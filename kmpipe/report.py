@@ -20,7 +20,6 @@ import itertools
 import json
 import math
 import os
-import tempfile
 from dataclasses import fields
 from pathlib import Path
 from urllib.parse import quote
@@ -30,6 +29,7 @@ from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from kmpipe.atomic_write import write_text_atomically
 from kmpipe.colorimetry import reflectance_to_sRGB
 from kmpipe.flags import Flag
 from kmpipe.validation import SEVERITIES, SampleReport, format_ranges, report_to_dict
@@ -57,21 +57,6 @@ img { max-width: 100%; height: auto; }
 
 
 # --- files -----------------------------------------------------------------------------------------------
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file next to ``path``, then rename it over ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o644)  # mkstemp makes 0600; reports are meant to be shared
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _page(title: str, body: str) -> str:
@@ -396,9 +381,9 @@ def write_sample_report(report: SampleReport, out_dir: Path) -> Path:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     document = json.dumps(report_to_dict(report, html="report.html"), indent=1, allow_nan=False)
-    _write_atomically(out_dir / "validation.json", document + "\n")
+    write_text_atomically(out_dir / "validation.json", document + "\n")
     path = out_dir / "report.html"
-    _write_atomically(path, render_sample_html(report))
+    write_text_atomically(path, render_sample_html(report))
     return path
 
 
@@ -428,7 +413,7 @@ def write_index(entries: list[tuple[SampleReport, Path]], out_dir: Path) -> Path
     body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n" + _table(
         ["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows
     )
-    _write_atomically(out_dir / "summary.json", json.dumps(summary, indent=1, allow_nan=False) + "\n")
+    write_text_atomically(out_dir / "summary.json", json.dumps(summary, indent=1, allow_nan=False) + "\n")
     path = out_dir / "index.html"
-    _write_atomically(path, _page("kmpipe validation summary", body))
+    write_text_atomically(path, _page("kmpipe validation summary", body))
     return path

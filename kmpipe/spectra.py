@@ -14,7 +14,6 @@ import csv
 import io
 import os
 import re
-import secrets
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from colour.algebra import CubicSplineInterpolator, PchipInterpolator, SpragueInterpolator
 
+from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
 
 FORMAT_KEY = "kmpipe-spectra"
@@ -508,27 +508,7 @@ def write_spectra_csv(table: SpectralTable, path: str | os.PathLike[str]) -> Non
     writer.writerow([first, *table.columns])
     for i, label in enumerate(table.sample_labels):
         writer.writerow([label, *(format_number(v) for v in table.values[:, i])])
-    data = buffer.getvalue().encode("utf-8")
-
-    temporary = path.with_name(f".{path.name}.{secrets.token_hex(8)}.tmp")
-    try:
-        descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        try:
-            with os.fdopen(descriptor, "wb") as handle:
-                handle.write(data)
-                handle.flush()
-                os.fsync(handle.fileno())
-            os.replace(temporary, path)
-        except BaseException:
-            temporary.unlink(missing_ok=True)
-            raise
-        directory = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(directory)
-        finally:
-            os.close(directory)
-    except OSError as err:
-        raise InputError(f"the file cannot be written ({err.strerror})", path=path) from None
+    write_text_atomically(path, buffer.getvalue())
 
 
 def _to_decimal(value: float | int | str | Decimal, name: str) -> Decimal:

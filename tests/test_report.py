@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from kmpipe import cli
+from kmpipe.errors import InputError
 from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
 from kmpipe.report import DPI, KS_SIZE, SPECTRA_SIZE, swatch_figsize, write_index, write_sample_report
 from kmpipe.validation import Finding, Thresholds, report_to_dict, validate_material
@@ -170,7 +171,7 @@ def test_rewriting_replaces_the_files_and_a_failed_write_keeps_the_old_ones(f1_r
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "replace", broken)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(InputError, match="disk full"):  # a clear message naming the file, no traceback
         write_sample_report(renamed(f1_report, "third"), tmp_path)
     assert (tmp_path / "report.html").read_text(encoding="utf-8") == old
     assert sorted(os.listdir(tmp_path)) == ["report.html", "validation.json"]
