@@ -21,14 +21,9 @@ FORMAT = "kmpipe-material/1"
 KS_CONVENTION = "Kubelka-Munk: K/S = (1 - R_inf)^2 / (2 R_inf)"
 
 
-@dataclass(frozen=True)
-class MeasurementFit:
-    """How well the material reproduces one measurement (residual = predicted - measured reflectance)."""
+class ResidualFigures:
+    """RMSE and where the largest error is, for anything with ``residuals`` (predicted - measured)."""
 
-    id: str
-    role: str
-    over: str | None
-    thickness_mm: float
     residuals: np.ndarray
 
     @property
@@ -38,6 +33,17 @@ class MeasurementFit:
     @property
     def max_abs_index(self) -> int:
         return int(np.argmax(np.abs(self.residuals)))
+
+
+@dataclass(frozen=True)
+class MeasurementFit(ResidualFigures):
+    """How well the material reproduces one measurement (residual = predicted - measured reflectance)."""
+
+    id: str
+    role: str
+    over: str | None
+    thickness_mm: float
+    residuals: np.ndarray
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from kmpipe.errors import InputError
 from kmpipe.flags import Flag
 from kmpipe.joint_fit import predict_readings
 from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.material import Material, read_material
+from kmpipe.material import Material, ResidualFigures, read_material
 from kmpipe.sample import Sample, file_sha256, load_sample
 from kmpipe.saunderson import saunderson_forward, saunderson_inverse
 
@@ -133,7 +133,7 @@ class Finding:
 
 
 @dataclass(frozen=True)
-class MeasurementCheck:
+class MeasurementCheck(ResidualFigures):
     """One measurement: measured and predicted reflectance, residual figures, colour differences, repeats."""
 
     id: str
@@ -150,14 +150,6 @@ class MeasurementCheck:
     @property
     def residuals(self) -> np.ndarray:
         return self.predicted - self.measured
-
-    @property
-    def rmse(self) -> float:
-        return float(np.sqrt(np.mean(self.residuals**2)))
-
-    @property
-    def max_abs_index(self) -> int:
-        return int(np.argmax(np.abs(self.residuals)))
 
 
 @dataclass(frozen=True)
