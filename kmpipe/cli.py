@@ -293,6 +293,34 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
     return EXIT_CHECK_FAILED if any(report.verdict == "fail" for report, _ in entries) else EXIT_OK
 
 
+def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.measure import run_session
+
+    interactive = False if args.unattended else None
+    run_session(
+        args.plan,
+        args.port,
+        out_dir=args.output,
+        record=args.record,
+        resume=args.resume,
+        interactive=interactive,
+        baudrate=args.baudrate,
+        rtscts=args.rtscts,
+        console=console,
+    )
+    return EXIT_OK
+
+
+def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
+    from instruments.cs2000.emulator import ScriptError, run
+
+    try:
+        run(link=args.link, samples=args.samples, socket_port=args.socket, time_scale=args.time_scale)
+    except ScriptError as err:
+        raise InputError(str(err), field="--samples") from None
+    return EXIT_OK
+
+
 def _positive_arg(text: str) -> float:
     try:
         value = float(text)
@@ -377,6 +405,38 @@ def build_parser() -> argparse.ArgumentParser:
     ):
         validate.add_argument(name, type=_positive_arg, metavar="X", help=what)
     validate.set_defaults(run=_cmd_validate)
+
+    measure = commands.add_parser(
+        "measure",
+        help="measure a sample with a Konica Minolta CS-2000 (guided session)",
+        description="Measure the white standard, the backings, the masstone and the films of one sample as a plan "
+        "(TOML; docs/formats.md) lists them. Prompts the technician when run at a terminal, runs unattended "
+        "otherwise. Each reading is saved as soon as it is read; an interrupted session continues with --resume. "
+        "Writes radiance.csv, reflectance.csv and a manifest that kmpipe fit accepts.",
+    )
+    measure.add_argument("plan", type=Path, help="measurement plan, TOML")
+    measure.add_argument(
+        "--port", required=True, help="/dev/ttyACM0, /dev/ttyUSB0, socket://HOST:PORT, replay://LOG ..."
+    )
+    measure.add_argument("-o", "--output", type=Path, help="session folder (default: SAMPLE/ beside the plan)")
+    measure.add_argument("--record", type=Path, metavar="LOG", help="append every byte exchanged to this session log")
+    measure.add_argument("--resume", action="store_true", help="continue an interrupted session in the folder")
+    measure.add_argument("--unattended", action="store_true", help="never prompt (the default when not at a terminal)")
+    measure.add_argument("--baudrate", type=int, default=115200, help="RS-232 only (USB ignores it); default 115200")
+    measure.add_argument("--rtscts", action="store_true", help="RTS/CTS flow control (the CS-2000's RS-232 default)")
+    measure.set_defaults(run=_cmd_measure)
+
+    emulate = commands.add_parser(
+        "emulate",
+        help="run a CS-2000 emulator on a pseudo-terminal (and a TCP port) to try kmpipe measure without hardware",
+    )
+    emulate.add_argument("--link", type=Path, default=Path("/tmp/cs2000"), help="device path to create (symlink)")
+    emulate.add_argument("--samples", type=Path, required=True, help="TOML naming the reflectance CSV and sequence")
+    emulate.add_argument("--socket", type=int, metavar="PORT", help="also listen on socket://127.0.0.1:PORT")
+    emulate.add_argument(
+        "--time-scale", type=_positive_arg, help="multiply instrument times (e.g. 0.1; default: the script's, else 1)"
+    )
+    emulate.set_defaults(run=_cmd_emulate)
     return parser
 
 

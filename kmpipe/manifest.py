@@ -172,7 +172,7 @@ class _LocatedError(ValueError):
         self.message = message
 
 
-def _toml_line(text: str, loc: tuple) -> int | None:
+def toml_line(text: str, loc: tuple) -> int | None:
     """1-based line of the field at ``loc`` (e.g. ('film', 1, 'thickness')) in TOML text, if found."""
     lines = text.splitlines()
     table, index, key = None, None, None
@@ -210,7 +210,7 @@ def _toml_line(text: str, loc: tuple) -> int | None:
     return start
 
 
-def _field_name(loc: tuple) -> str:
+def format_field(loc: tuple) -> str:
     out = ""
     for part in loc:
         if isinstance(part, int):
@@ -229,7 +229,7 @@ def field_line(path: Path, field: str) -> int | None:
         if index:
             loc.append(int(index.rstrip("]")) - 1)
     try:
-        return _toml_line(Path(path).read_text(encoding="utf-8"), tuple(loc))
+        return toml_line(Path(path).read_text(encoding="utf-8"), tuple(loc))
     except (OSError, UnicodeDecodeError, ValueError):
         return None
 
@@ -265,4 +265,4 @@ def load_manifest(path: str | Path) -> Manifest:
         message = message.removeprefix("Value error, ")
         more = len(err.errors()) - 1
         suffix = f" ({more} more problem{'s' if more > 1 else ''} after this one)" if more else ""
-        raise InputError(message + suffix, path=path, line=_toml_line(text, loc), field=_field_name(loc)) from None
+        raise InputError(message + suffix, path=path, line=toml_line(text, loc), field=format_field(loc)) from None

@@ -11,6 +11,10 @@ No public set of cosmetic drawdowns over black and white backings exists, so the
   about 0.6 % of the reading, repeat to repeat).
 - Backings are a black card (~0.035) and a white card (~0.78-0.86) with gentle spectral slopes.
 
+Each sample also gets what it takes to measure it again with the CS-2000 emulator (``kmpipe emulate``): the
+reflectance of everything the technician puts under the instrument (``emulator_reflectance.csv``), the samples
+script that orders it as the plan does (``emulator.toml``) and the measurement plan (``plan.toml``).
+
 Run from the repository root: ``.venv/bin/python recipes/samples/simulate_samples.py``. The output is
 deterministic (fixed seeds); the true K and S are written beside each sample as ``truth.json``.
 """
@@ -116,6 +120,41 @@ def header(sample: str, what: str, serial: str) -> dict[str, str]:
     }
 
 
+def write_emulator_files(folder: Path, name: str, spec: dict, cards: dict, K: np.ndarray, S: np.ndarray) -> None:
+    """plan.toml, emulator.toml and emulator_reflectance.csv for measuring this sample with the emulator."""
+    columns = {"baso4": baso4_typical(WAVELENGTHS), "black_card": cards["black"], "white_card": cards["white"]}
+    columns["masstone"] = predict_readings(K, S, np.array([np.inf]), np.zeros((1, WAVELENGTHS.size)))[0]
+    sequence = ["baso4", "black_card", "white_card", "masstone"]
+    films = []
+    for um in spec["thicknesses_um"]:
+        for over in ("black", "white"):
+            column = f"film_{um}um_over_{over}"
+            columns[column] = predict_readings(K, S, np.array([um / 1000.0]), cards[over][None, :])[0]
+            sequence.append(column)
+            films.append(f'[[film]]\nover = "{over}"\nthickness = "{um} um"\n')
+    metadata = {
+        "quantity": "reflectance",
+        "units": "1",
+        "note": f"SIMULATED reflectance for the emulator, sample {name}",
+    }
+    table = SpectralTable(WAVELENGTHS, None, tuple(columns), np.array(list(columns.values())), metadata)
+    write_spectra_csv(table, folder / "emulator_reflectance.csv")
+    (folder / "emulator.toml").write_text(
+        "# kmpipe emulate --samples emulator.toml: what lies under the instrument at each MEAS of plan.toml.\n"
+        f'[samples]\nfile = "emulator_reflectance.csv"\nsequence = {json.dumps(sequence)}\n'
+        f'illuminant = "D55"\ngain = 0.0105\nnoise = {RELATIVE_NOISE}\nseed = {sum(map(ord, name))}\n',
+        encoding="utf-8",
+    )
+    (folder / "plan.toml").write_text(
+        "# kmpipe measure plan.toml --port /dev/ttyACM0 (or the emulator's link): one reading per position.\n"
+        f'[sample]\nname = "{name}"\nproduct = "{spec["product"]}"\nkind = "{spec["kind"]}"\n\n'
+        '[instrument]\nspeed = "normal"\nnd = "auto"\nrepeats = 1\n\n[white]\ncertified = "builtin:baso4"\n\n'
+        '[[backing]]\nname = "black"\n\n[[backing]]\nname = "white"\n\n[[masstone]]\nthickness = "1 mm"\n\n'
+        + "\n".join(films),
+        encoding="utf-8",
+    )
+
+
 def main() -> None:
     pigments = read_pigments()
     d55 = colour.SDS_ILLUMINANTS["D55"].copy().align(colour.SpectralShape(380, 780, 1)).values
@@ -203,6 +242,7 @@ def main() -> None:
             + "\n",
             encoding="utf-8",
         )
+        write_emulator_files(folder, name, spec, cards, K, S)
         print(f"wrote {folder}")
 
 
