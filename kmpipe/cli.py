@@ -318,6 +318,12 @@ def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
         run(link=args.link, samples=args.samples, socket_port=args.socket, time_scale=args.time_scale)
     except ScriptError as err:
         raise InputError(str(err), field="--samples") from None
+    except FileExistsError:
+        raise InputError(
+            "exists and is not an emulator link; choose another path", path=args.link, field="--link"
+        ) from None
+    except OSError as err:
+        raise InputError(f"the emulator cannot listen: {err}", field="--socket" if args.socket else "--link") from None
     return EXIT_OK
 
 

@@ -338,6 +338,8 @@ def test_bad_scripts_are_refused_with_the_file_named(tmp_path):
     script.write_text('[samples]\nfile = "r.csv"\nsequence = ["b"]\n')
     with pytest.raises(ScriptError, match="unknown sample"):
         Emulator.from_script(script)
+    script.write_text('[samples]\nfile = "r.csv"\n[faults.slow]\nkind = "delay"\ncommand = "IDDR"\nseconds = 2\n')
+    assert load_script(script)["faults"] == [Fault("delay", "IDDR", seconds=2)]
     script.write_text('[samples]\nfile = "r.csv"\n[[faults]]\nkind = "explode"\n')
     with pytest.raises(ScriptError, match="fault 1: fault kind 'explode'"):
         load_script(script)
@@ -585,12 +587,19 @@ def test_command_line_runs_until_interrupted(tmp_path):
     assert not os.path.lexists(link)
 
 
-def test_conditions_type():
-    with Emulator(REFLECTANCE, time_scale=SCALE) as emu:
+def test_manual_integration_conditions_and_aperture():
+    with Emulator(REFLECTANCE, time_scale=SCALE, aperture=2) as emu:
         host = Host(emu.port)
         host.remote()
+        assert host.fields("STSR") == ("2",)
         host.ask("SPMS,3,100000,0")
+        host.ask("SCMS,1,6000")
         emu.under_instrument = "black"
-        host.measure()
-        assert parse_conditions(host.fields("MEDR,0,0,1")) == Conditions(3, 0, 100000, 0, 0, 0, 0, 0)
+        assert host.measure() == 3  # 2 s + 2 x 0.1 s
+        assert parse_conditions(host.fields("MEDR,0,0,1")) == Conditions(3, 1, 100000, 0, 0, 0, 2, 0)
+        # a white at 70000 cd m-2 is within the 0.1 deg range (500000 cd m-2) but saturates a 5 s manual integration
+        # (limit: range x 0.5 s)
+        host.ask("SPMS,3,5000000,0")
+        emu.under_instrument = "white"
+        assert host.ask("MEAS,1") == b"ER10\r\n"
         host.close()

@@ -70,6 +70,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from functools import cache
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -118,7 +119,7 @@ FAULT_KINDS = (
 """Injectable faults; see :class:`Fault`."""
 
 _WIRE_KINDS = frozenset({"delay", "chunks", "garbage", "disconnect"})
-_MEAS_ONLY_KINDS = frozenset({"no_completion", "calculation_error"})
+_MEAS_KINDS = frozenset({"no_completion", "calculation_error", "late_completion"})
 _REPLY_ERRORS = {"busy": "ER02", "no_data": "ER20", "over_range": "ER10", "error": None}
 _MAX_COMMAND = 1024  # bytes without a terminator before the instrument discards its input buffer
 _CR_WAIT = 0.05  # s: after a CR, how long to wait for an LF (CR LF) before taking CR alone as the terminator
@@ -185,6 +186,8 @@ class Fault:
             raise ValueError(f"fault occurrence {self.occurrence!r} is not a positive integer")
         if self.at not in ("reply", "completion"):
             raise ValueError(f"fault 'at' {self.at!r} is not 'reply' or 'completion'")
+        if self.kind in _MEAS_KINDS and self.command.split(",")[0] not in ("*", "MEAS"):
+            raise ValueError(f"a {self.kind} fault applies to MEAS, not {self.command!r}")
         if self.at == "completion" and self.kind not in _WIRE_KINDS | {"error", "over_range"}:
             raise ValueError(f"a {self.kind} fault cannot apply to the completion line")
         if not (self.seconds >= 0 and self.chunk_size >= 1 and 0 <= self.fraction <= 1):
@@ -452,11 +455,10 @@ def load_script(path: str | os.PathLike[str]) -> dict[str, object]:
 class _PtyLink:
     """The instrument end of a pseudo-terminal (raw mode); the host opens :attr:`path`."""
 
-    kind = "pty"
-
     def __init__(self) -> None:
         self.master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no CR/LF translation: bytes pass unchanged both ways
+        os.set_blocking(self.master, False)  # a host that does not read loses bytes, as on a serial line
         self.path = os.ttyname(self._slave)
         self.inbuf = bytearray()
         self.closed = False
@@ -472,8 +474,9 @@ class _PtyLink:
 
     def write(self, data: bytes) -> None:
         view = memoryview(data)
-        while view:
-            view = view[os.write(self.master, view) :]
+        with contextlib.suppress(BlockingIOError):
+            while view:
+                view = view[os.write(self.master, view) :]
 
     def unread(self) -> int:
         """Bytes sent that the host has not read yet."""
@@ -488,8 +491,6 @@ class _PtyLink:
 
 class _SocketLink:
     """One TCP client of the emulator's server."""
-
-    kind = "socket"
 
     def __init__(self, connection: socket.socket) -> None:
         self.connection = connection
@@ -532,7 +533,7 @@ class _Pending:
     """A measurement in progress."""
 
     link: _Link
-    measurement: Measurement | None
+    measurement: Measurement
     error: str | None
     faults: list[Fault]
     state: str = "premeasuring"  # then "measuring"
@@ -573,6 +574,8 @@ class Emulator:
     model, serial_number, firmware : str
         Identity; ``RMTS,2`` is refused (ER17) below firmware 3.00.9301, and firmware 1.01.0000 sends ``0``
         for sentinels.
+    aperture : int
+        Measuring angle (``STSR``): 0 = 1 deg, 1 = 0.2 deg, 2 = 0.1 deg; sets the luminance range.
     pty : bool
         Serve a pseudo-terminal.
     link : path, optional
@@ -595,6 +598,7 @@ class Emulator:
         model: str = "CS-2000A",
         serial_number: str = "1234567",
         firmware: str = "3.00.9301",
+        aperture: int = 0,
         pty: bool = True,
         link: str | os.PathLike[str] | None = None,
         socket_port: int | None = None,
@@ -623,6 +627,9 @@ class Emulator:
         self.gain, self.noise, self.time_scale = float(gain), float(noise), float(time_scale)
         self.model, self.serial_number, self.firmware = model, serial_number, firmware
         self._firmware = _firmware_tuple(firmware)
+        if aperture not in _LV_LIMIT:
+            raise ValueError(f"aperture {aperture!r} is not 0 (1 deg), 1 (0.2 deg) or 2 (0.1 deg)")
+        self._aperture = aperture
         self.faults = list(faults)
         self._fault_counts = [0] * len(self.faults)
         self._rng = np.random.default_rng(seed)
@@ -652,7 +659,6 @@ class Emulator:
         self._speed: tuple[int, int, int] = (0, 0, 2)  # mode, seconds or microseconds (0 if none), ND 0/1/2
         self._sync: tuple[int, int] = (0, 0)  # mode, frequency in 1/100 Hz
         self._observer = 0
-        self._aperture = 0
         self._data: _Data | None = None
         self._pending: _Pending | None = None
         self._late_until = 0.0  # monotonic time until which a no_completion measurement is still "measuring"
@@ -768,7 +774,7 @@ class Emulator:
         kwargs = load_script(path) | overrides
         try:
             return cls(**kwargs)  # type: ignore[arg-type]
-        except ValueError as error:
+        except (TypeError, ValueError) as error:
             raise ScriptError(f"{path}: {error}") from None
 
     # ------------------------------------------------------------------------------------------ transports
@@ -961,11 +967,9 @@ class Emulator:
         handler = getattr(self, f"_{mnemonic.lower()}", None)
         if handler is None or mnemonic not in _COMMANDS:
             return "ER00", ()
-        try:
-            numbers = tuple(int(p) for p in params)
-        except ValueError:
+        if not all(p.isdigit() for p in params):
             return "ER00", ()
-        return handler(numbers)
+        return handler(tuple(int(p) for p in params))
 
     def _rmts(self, params: tuple[str, ...]) -> tuple[str, tuple[str, ...]]:
         if len(params) != 1 or not params[0].isdigit():
@@ -1155,7 +1159,6 @@ class Emulator:
             self._pending = None
             self._send(pending.link, format_reply(pending.error, terminator=terminator), wire)
             return
-        assert pending.measurement is not None
         pending.state = "measuring"
         seconds = pending.measurement.measuring_time
         self._send(pending.link, format_reply("OK00", f"{seconds:03d}", terminator=terminator), wire)
@@ -1175,7 +1178,6 @@ class Emulator:
         if error is not None:
             self._send(pending.link, format_reply(_fault_code(error), terminator=terminator), wire)
             return
-        assert pending.measurement is not None
         self._store(pending.measurement)
         self._send(pending.link, format_reply("OK00", terminator=terminator), wire)
 
@@ -1198,7 +1200,7 @@ def run(
     socket_port: int | None = None,
     time_scale: float | None = None,
     *,
-    out=None,
+    out: TextIO | None = None,
 ) -> None:
     """Serve an emulated CS-2000 until Ctrl-C (or SIGTERM): on a pseudo-terminal (with the symlink ``link``)
     and, if ``socket_port`` is given, on TCP 127.0.0.1. ``samples`` is a samples script (TOML) or a reflectance
