@@ -33,11 +33,12 @@ from kmpipe.saunderson import saunderson_inverse
 
 
 def _combine(inversions: list[Inversion]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Average unflagged K and S over several estimates; keep the largest-S flagged one elsewhere."""
+    """Average the good (unflagged, or merely AT_BOUND) K and S of several estimates; where there is none,
+    keep the largest-S flagged one with the union of the flags."""
     K = np.array([i.K for i in inversions])
     S = np.array([i.S for i in inversions])
     flags = np.array([i.flags for i in inversions])
-    good = flags == 0
+    good = (flags & ~np.uint8(Flag.AT_BOUND)) == 0  # K = 0 at the bound is an estimate like any other
     count = good.sum(axis=0)
     any_good = count > 0
     mean_K = np.where(good, K, 0.0).sum(axis=0) / np.maximum(count, 1)
@@ -48,7 +49,7 @@ def _combine(inversions: list[Inversion]) -> tuple[np.ndarray, np.ndarray, np.nd
     return (
         np.where(any_good, mean_K, K[pick, columns]),
         np.where(any_good, mean_S, S[pick, columns]),
-        np.where(any_good, 0, union).astype(np.uint8),
+        np.where(any_good, np.bitwise_or.reduce(np.where(good, flags, 0), axis=0), union).astype(np.uint8),
     )
 
 

@@ -23,7 +23,8 @@ class Flag(enum.IntFlag):
     #: The background reflects as much as the masstone: a film over it does not change the reading,
     #: so S cannot be found from that pair. K/S is exact; S is 0.
     NO_CONTRAST = 4
-    #: The joint fit ended at K = 0 or S = 0; its standard error there is one-sided.
+    #: K or S ended at 0 because the readings asked for a little less (noise on a film that barely absorbs
+    #: or scatters): the nearest physical value. A fit's standard error there is one-sided.
     AT_BOUND = 8
 
 
@@ -33,7 +34,7 @@ EXPLANATIONS = {
     Flag.OUT_OF_RANGE: "readings outside what the model and backgrounds allow: "
     "K and S were moved to the nearest physical values",
     Flag.NO_CONTRAST: "background as bright as the masstone: S cannot be found from this pair",
-    Flag.AT_BOUND: "the fit ended at K = 0 or S = 0",
+    Flag.AT_BOUND: "K or S ended at 0: the readings asked for slightly less (noise); 0 is the nearest physical value",
 }
 
 

@@ -243,7 +243,8 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
     """The common case of :func:`black_white` into K, S, ks (and flags), with few temporaries.
 
     A negative K/S (noise on a nearly non-absorbing film) is taken as K = 0, S X = D / N_y, the nearest
-    physical solution; below -``tolerance`` it is also flagged OUT_OF_RANGE. Returns the mask of elements
+    physical solution, flagged AT_BOUND; below -``tolerance`` it is flagged OUT_OF_RANGE instead. Returns the mask
+    of elements
     that are opaque, out of range otherwise, or near D = 0 (a clear absorber, where rounding decides the
     sign of D): those are redone by :func:`_black_white_careful`. Values computed at those elements may be
     inf or nan.
@@ -263,8 +264,8 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
         Ny = s_w * c_b
         Ny -= s_b * c_w
         irregular = ~(D > 1e-12 * first)
-        negative = K < -tolerance * D
-        flags[negative] = np.uint8(Flag.OUT_OF_RANGE)
+        flags[K < -1e-12 * D] = np.uint8(Flag.AT_BOUND)  # beyond rounding: the readings asked for K < 0
+        flags[K < -tolerance * D] = np.uint8(Flag.OUT_OF_RANGE)
         np.maximum(K, 0.0, out=K)
         b_num = 2.0 * D
         b_num += K
@@ -300,6 +301,7 @@ def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
     # -tolerance is taken as K = 0; only a clearly negative K/S is out of range.
     scale = (1.0 - Rw) * (1.0 - Gw) * np.abs(Rb - Gb) + (1.0 - Rb) * (1.0 - Gb) * np.abs(Rw - Gw)
     negative_k = Nu < -np.maximum(tolerance * D, 1e-12 * scale)
+    clamped_k = (Nu < -1e-12 * scale) & ~negative_k
     Nu = np.maximum(Nu, 0.0)
     b_num = np.sqrt(Nu * np.maximum(Nu + 2.0 * D, 0.0))  # b * |D|
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -335,6 +337,7 @@ def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
     flags = np.zeros(Rb.shape, dtype=np.uint8)
     flags[opaque] |= np.uint8(Flag.OPAQUE)
     flags[~opaque & (~regular | negative_k)] |= np.uint8(Flag.OUT_OF_RANGE)
+    flags[regular & clamped_k] |= np.uint8(Flag.AT_BOUND)
     return KX / X, SX / X, ks, flags
 
 

@@ -10,6 +10,7 @@ that ``kmpipe fit`` and ``kmpipe validate`` accept.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import re
@@ -25,11 +26,11 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from rich.console import Console
 
 from instruments.cs2000.driver import CS2000, InstrumentTimeout, Reading
-from instruments.cs2000.protocol import CS2000Error
+from instruments.cs2000.protocol import CS2000Error, ProtocolError
 from kmpipe import __version__
 from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
-from kmpipe.manifest import format_field, parse_thickness_mm, toml_line
+from kmpipe.manifest import field_line, format_field, parse_thickness_mm, toml_line
 from kmpipe.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
 from kmpipe.white import certified_reflectance, radiance_to_reflectance
 
@@ -352,7 +353,6 @@ def run_session(
         raise InputError(
             "already holds a measuring session; run with --resume to continue it, or choose another -o", path=folder
         )
-    folder.mkdir(parents=True, exist_ok=True)
     if resume:
         session.load()
     interactive = sys.stdin.isatty() if interactive is None else interactive
@@ -366,7 +366,12 @@ def run_session(
             except ValueError as err:
                 console.print(f"[red]{err}[/]")
 
-    steps = positions(plan, ask_thickness if interactive else None)
+    try:
+        steps = positions(plan, ask_thickness if interactive else None)
+    except InputError as err:
+        if err.path is None and err.field:
+            err.path, err.line = plan_path, field_line(plan_path, err.field)
+        raise
     todo = [p for p in steps if p.column not in session.readings]
     if session.readings:
         console.print(f"resuming: {len(session.readings)} of {len(steps)} readings already saved in {folder}")
@@ -381,6 +386,7 @@ def run_session(
         raise InputError(f"cannot open the instrument port {port_url!r}: {err}", field="--port") from None
     instrument = CS2000(port)
     done = len(session.readings)
+    folder.mkdir(parents=True, exist_ok=True)
     try:
         mode = instrument.remote(True)
         identity = instrument.identity()
@@ -408,18 +414,22 @@ def run_session(
             summary = "calculation error" if None in (lv, x, y) else f"Lv {lv:.4g} cd/m2, x {x:.4f}, y {y:.4f}"
             console.print(f"  [{done}/{len(steps)}] {position.column}: {summary} ({reading.measuring_seconds} s)")
         manifest = _finish(session, plan, steps)
-    except (CS2000Error, InstrumentTimeout, serial.SerialException, OSError) as err:
+    except KeyboardInterrupt:
+        with contextlib.suppress(Exception):  # stop a measurement in progress; the saved readings stay
+            instrument.cancel()
+        console.print(f"interrupted: {done} of {len(steps)} readings are saved in {folder}; --resume continues")
+        raise
+    except (CS2000Error, InstrumentTimeout, ProtocolError, serial.SerialException, OSError) as err:
         raise InputError(
             f"the instrument session stopped: {err}. {done} of {len(steps)} readings are saved in {folder}; "
             "fix the cause and run the same command with --resume to measure the rest",
             field="--port",
         ) from None
     finally:
-        try:
+        instrument.reply_timeout = 2.0  # a silent instrument must not hold the error message back for long
+        with contextlib.suppress(Exception):  # the port may be gone; the readings are already safe on disk
             instrument.set_measure_button(True)
             instrument.remote(False)
-        except Exception:  # the port may be gone; the readings are already safe on disk
-            pass
         instrument.close()
     console.print(f"wrote {session.radiance_path}, {folder / 'reflectance.csv'} and {manifest}")
     return manifest

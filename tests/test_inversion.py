@@ -39,7 +39,8 @@ WELL = 1e-9  # required accuracy where well-conditioned
 INTRINSIC = 1e-11  # what the data themselves must determine for an element to count as well-conditioned
 HIDES = 1e-3  # contrast below which a film is treated as hiding its backing
 CLEAR = 0.02  # contrast above which no OPAQUE flag is acceptable
-ANY_FLAG = int(Flag.OPAQUE | Flag.OUT_OF_RANGE | Flag.NO_CONTRAST)
+# AT_BOUND: K (or S) moved to 0 because the readings asked for slightly less; such values need not reproduce them.
+ANY_FLAG = int(Flag.OPAQUE | Flag.OUT_OF_RANGE | Flag.NO_CONTRAST | Flag.AT_BOUND)
 
 
 # ---------------------------------------------------------------------------------------------

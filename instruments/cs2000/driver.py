@@ -97,6 +97,20 @@ class CS2000:
             elif tick is not None:
                 tick()
 
+    def _read_reply(self, seconds: float, command: bytes, tick: Callable[[], None] | None = None) -> Reply:
+        """The next line that is a reply (starts with a reply code, after any garbage), within ``seconds``.
+
+        Lines that hold no reply code at all (line noise ending in a line feed) are skipped, not taken as the
+        answer: the instrument's real reply is still to come.
+        """
+        deadline = time.monotonic() + seconds
+        while True:
+            line = self._read_line(max(deadline - time.monotonic(), 0.0), command, tick)
+            try:
+                return protocol.parse_reply(line)
+            except protocol.ProtocolError:
+                continue
+
     def _discard_stale(self) -> None:
         """Drop input left from earlier exchanges (a late completion line, noise) before a new command."""
         self._pending = b""
@@ -108,8 +122,7 @@ class CS2000:
         self._discard_stale()
         self.port.write(command)
         self.port.flush()
-        line = self._read_line(timeout or self.reply_timeout, command)
-        return protocol.parse_reply(line)
+        return self._read_reply(timeout or self.reply_timeout, command)
 
     def command(self, mnemonic: str, *params, timeout: float | None = None) -> tuple[str, ...]:
         """Send one command; its fields, or CS2000Error for an ERnn reply."""
@@ -176,23 +189,26 @@ class CS2000:
         self.port.write(command)
         self.port.flush()
         started = time.monotonic()
-        first = protocol.parse_reply(self._read_line(first_timeout, command))
+        first = self._read_reply(first_timeout, command)
         announced = protocol.parse_measure_time(first)
         tick = None if progress is None else (lambda: progress(time.monotonic() - started, announced))
         try:
-            line = self._read_line(announced + margin, command, tick)
+            completion = self._read_reply(announced + margin, command, tick)
         except InstrumentTimeout:
             self.wait_until_idle(REPLY_TIMEOUT + margin)
             return announced
-        protocol.check(protocol.parse_reply(line))
+        protocol.check(completion)
         return announced
 
     def wait_until_idle(self, seconds: float) -> None:
-        """Poll MEDR,0,0,1 until the instrument no longer answers "busy" (the completion line was lost)."""
+        """Poll MEDR,0,0,1 until the instrument no longer answers "busy" (the completion line was lost).
+
+        ER20 (no data) also means idle: nothing is being measured, there is just nothing to read.
+        """
         deadline = time.monotonic() + seconds
         while True:
             reply = self.query("MEDR", 0, 0, 1)
-            if reply.code == "OK00":
+            if reply.code in ("OK00", "ER20"):
                 return
             error = CS2000Error(reply.code)
             if not error.busy:

@@ -1,0 +1,399 @@
+"""``kmpipe measure``: recorded sessions replayed through ``replay://``, a live session against the CS-2000 emulator
+on a pseudo-terminal (then ``kmpipe fit`` and ``kmpipe validate``), an interrupted session resumed, and bad input.
+
+References are independent of the code under test: the session folders and exit statuses that the original
+runs wrote (``tests/data/sessions/*.expected``, recorded by ``tests/data/sessions/record_sessions.py``), the
+emulator's ground truth (``Emulator.measurements``), and the K and S that sample F1 was simulated from
+(``recipes/samples/F1/truth.json``).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import serial
+
+from instruments.cs2000.emulator import Emulator, Fault, read_reflectance_csv
+from instruments.session_log import read_session_log
+from kmpipe.cli import main
+from kmpipe.spectra import read_spectra_csv
+
+ROOT = Path(__file__).resolve().parents[1]
+F1 = ROOT / "recipes" / "samples" / "F1"
+PLAN = F1 / "plan.toml"
+SESSIONS = Path(__file__).resolve().parent / "data" / "sessions"
+NAMES = (
+    "complete",
+    "over_range",
+    "busy",
+    "no_data",
+    "missing_completion",
+    "garbage",
+    "chunks",
+    "slow",
+    "disconnect",
+)
+READINGS = 8  # positions in F1's plan
+TIME_SCALE = 0.02
+STOPPED = re.compile(
+    r"the instrument session stopped: (?P<detail>.*)\. (?P<saved>\d+) of (?P<total>\d+) readings are saved in "
+    r"(?P<folder>.*); fix the cause and run the same command with --resume to measure the rest"
+)
+
+
+def kmpipe(capsys, *argv: str | Path) -> tuple[int, str]:
+    """Run the command line in-process; its exit status and standard error."""
+    capsys.readouterr()
+    status = main([str(a) for a in argv])
+    return status, capsys.readouterr().err
+
+
+def measure(capsys, port: str, folder: Path, *more: str | Path, plan: Path = PLAN) -> tuple[int, str]:
+    return kmpipe(capsys, "measure", plan, "--port", port, "-o", folder, "--unattended", *more)
+
+
+def radiance_table(path: Path):
+    table = read_spectra_csv(path)
+    return table, {c: np.asarray(table.column(c), dtype=np.float64) for c in table.columns}
+
+
+def without_times(state: dict) -> dict:
+    """session.json without the clock times of the readings."""
+    return state | {"readings": [{k: v for k, v in r.items() if k != "time"} for r in state["readings"]]}
+
+
+def lines_without_time(path: Path) -> list[str]:
+    """A spectral CSV's lines without its ``# time:`` header (radiance.csv stamps the first reading's time)."""
+    return [line for line in path.read_text(encoding="utf-8").splitlines() if not line.startswith("# time:")]
+
+
+def assert_same_session_files(folder: Path, expected: Path) -> None:
+    """The files a session folder holds equal those of the original run (clock times aside)."""
+    wanted = sorted(p.name for p in expected.iterdir() if p.name not in ("exit_status", "message"))
+    assert sorted(p.name for p in folder.iterdir() if not p.name.startswith(".")) == wanted
+    got_table, got = radiance_table(folder / "radiance.csv")
+    want_table, want = radiance_table(expected / "radiance.csv")
+    assert list(got) == list(want)
+    for column, values in want.items():
+        np.testing.assert_array_equal(got[column], values, err_msg=column)  # exactly: float32 from hex
+    assert {k: v for k, v in got_table.metadata.items() if k != "time"} == {
+        k: v for k, v in want_table.metadata.items() if k != "time"
+    }
+    assert lines_without_time(folder / "radiance.csv") == lines_without_time(expected / "radiance.csv")
+    state = json.loads((folder / "session.json").read_text(encoding="utf-8"))
+    assert without_times(state) == without_times(json.loads((expected / "session.json").read_text(encoding="utf-8")))
+    for name in ("reflectance.csv", "manifest.toml"):
+        if (expected / name).exists():
+            assert (folder / name).read_text(encoding="utf-8") == (expected / name).read_text(encoding="utf-8"), name
+
+
+# ------------------------------------------------------------------------------------------- recorded sessions
+
+
+def exchanges(name: str) -> list[tuple[bytes, list]]:
+    """The log of a fixture as (bytes written, events until the next write) pairs; one connection."""
+    [connection] = read_session_log(SESSIONS / f"{name}.jsonl")
+    pairs: list[tuple[bytes, list]] = []
+    for event in connection.events:
+        if event.kind == "tx":
+            pairs.append((event.data, []))
+        else:
+            assert pairs, "the log reads before the first write"
+            pairs[-1][1].append(event)
+    return pairs
+
+
+def received(events) -> bytes:
+    return b"".join(e.data for e in events if e.kind == "rx")
+
+
+def count_tx(pairs, command: bytes) -> int:
+    return sum(tx == command for tx, _ in pairs)
+
+
+def test_every_fixture_exercises_its_fault():
+    """Each recorded log shows on the wire the fault its name promises (so the replays below cover it)."""
+    pairs = {name: exchanges(name) for name in NAMES}
+    for name, log in pairs.items():  # every log starts the same way and stays in remote mode to the end
+        assert [tx for tx, _ in log[:5]] == [b"RMTS,2\r\n", b"IDDR\r\n", b"MSWE,0\r\n", b"SPMS,0,2\r\n", b"OBSS,0\r\n"]
+        assert b"MEAS,1\r\n" in {tx for tx, _ in log}, name
+    clean = pairs["complete"]
+    assert count_tx(clean, b"MEAS,1\r\n") == READINGS
+    assert not any(b"ER" in received(events) for _, events in clean)
+    assert [tx for tx, _ in clean[-2:]] == [b"MSWE,1\r\n", b"RMTS,0\r\n"]
+
+    over = pairs["over_range"]
+    meas = [received(events) for tx, events in over if tx == b"MEAS,1\r\n"]
+    assert meas[-1] == b"ER10\r\n" and len(meas) == 5 and all(m.startswith(b"OK00,003\r\n") for m in meas[:4])
+
+    for name, command, code in (("busy", b"MEDR,1,1,2\r\n", b"ER02\r\n"), ("no_data", b"MEDR,1,1,3\r\n", b"ER20\r\n")):
+        log = pairs[name]
+        failed = [i for i, (tx, events) in enumerate(log) if tx == command and received(events) == code]
+        assert len(failed) == 1, name
+        # then it polls until idle and measures again (the sample has not moved): one MEAS,1 more than readings
+        assert log[failed[0] + 1][0] == b"MEDR,0,0,1\r\n" and log[failed[0] + 2][0] == b"MEAS,1\r\n"
+        assert count_tx(log, b"MEAS,1\r\n") == READINGS + 1
+
+    lost = pairs["missing_completion"]
+    polled = [i for i, (tx, _) in enumerate(lost) if tx == b"MEDR,0,0,1\r\n" and lost[i - 1][0] == b"MEAS,1\r\n"]
+    assert len(polled) == 1
+    events = lost[polled[0] - 1][1]
+    assert received(events) == b"OK00,003\r\n"  # the first reply only: no completion line ...
+    waited = sum(e.waited for e in events if e.kind == "timeout")
+    assert waited > 3  # ... after the announced 3 s (and the margin), the driver polled instead
+    assert received(lost[polled[0]][1]).startswith(b"OK00,")
+    assert count_tx(lost, b"MEAS,1\r\n") == READINGS
+
+    noisy = b"".join(received(events) for _, events in pairs["garbage"])
+    assert b"\x00\xfe~#OK00," in noisy and b"OK00,3AA1OK00\r\n" in noisy and b"\x00OK00,CS-2000A" in noisy
+
+    pieces = [sum(e.kind == "rx" for e in events) for _, events in pairs["chunks"]]
+    assert max(pieces) > 10  # a 906-byte block in 64-byte pieces
+
+    slow = [
+        (tx, events)
+        for tx, events in pairs["slow"]
+        if sum(e.kind == "timeout" for e in events) >= 2 and received(events).endswith(b"\r\n")
+    ]
+    assert {tx for tx, _ in slow} >= {b"IDDR\r\n", b"MEDR,1,1,4\r\n"}  # answered after reads that timed out
+
+    cut = pairs["disconnect"]
+    last_tx, events = cut[-1]
+    assert last_tx == b"MEDR,1,1,2\r\n" and events[-1].kind == "close"
+    partial = received(events)
+    assert partial.startswith(b"OK00,") and b"\n" not in partial and 0 < len(partial) < 906
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_replay_gives_the_outcome_of_the_original_run(name, tmp_path, capsys, monkeypatch):
+    expected = SESSIONS / f"{name}.expected"
+    opened = []
+    serial_for_url = serial.serial_for_url
+
+    def recorded_port(url, *args, **kwargs):
+        opened.append(serial_for_url(url, *args, **kwargs))
+        return opened[-1]
+
+    monkeypatch.setattr(serial, "serial_for_url", recorded_port)
+    folder = tmp_path / "F1"
+    status, err = measure(capsys, f"replay://{SESSIONS / name}.jsonl?timing=fast&strict=1", folder)
+
+    assert status == int((expected / "exit_status").read_text(encoding="ascii"))
+    [port] = opened
+    port.assert_complete()  # strict replay: the driver wrote the recorded bytes, all of them, and read every reply
+    assert_same_session_files(folder, expected)
+    if status == 0:
+        assert err == ""
+        return
+    recorded = STOPPED.search((expected / "message").read_text(encoding="utf-8"))
+    replayed = STOPPED.search(err)
+    assert recorded and replayed, err
+    assert replayed["folder"] == str(folder)
+    assert (replayed["saved"], replayed["total"]) == (recorded["saved"], recorded["total"])
+    saved = int(replayed["saved"])
+    assert 0 < saved < READINGS and not (folder / "manifest.toml").exists()
+    assert len(json.loads((folder / "session.json").read_text(encoding="utf-8"))["readings"]) == saved
+    # the same error; a vanished port is reported by pyserial live and by the replay at the recorded point
+    assert replayed["detail"] == recorded["detail"] or all("disconnected" in m["detail"] for m in (recorded, replayed))
+
+
+# -------------------------------------------------------------------------------------------------- live runs
+
+
+def material_grid(material: dict) -> np.ndarray:
+    return np.asarray(material["grid"]["wavelengths_nm"], dtype=np.float64)
+
+
+def test_live_session_then_fit_recovers_the_truth_and_validates(tmp_path, capsys):
+    folder = tmp_path / "F1"
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, link=tmp_path / "cs2000") as emulator:
+        status, err = measure(capsys, emulator.link, folder)
+        truth = emulator.measurements
+    assert status == 0, err
+    assert len(truth) == READINGS
+    _, radiance = radiance_table(folder / "radiance.csv")
+    for (column, values), measurement in zip(radiance.items(), truth, strict=True):
+        np.testing.assert_array_equal(values, measurement.radiance, err_msg=column)
+
+    material_path = tmp_path / "F1.json"
+    status, err = kmpipe(capsys, "fit", folder / "manifest.toml", "-o", material_path)
+    assert status == 0, err
+    material = json.loads(material_path.read_text(encoding="utf-8"))
+    reference = json.loads((F1 / "truth.json").read_text(encoding="utf-8"))
+    grid = material_grid(material)
+    for quantity, key in (("K", "K_per_mm"), ("S", "S_per_mm")):
+        true = np.interp(grid, reference["wavelengths_nm"], reference[key])
+        relative = np.abs(np.asarray(material[quantity]) / true - 1)
+        assert np.median(relative) < 0.05, (quantity, np.median(relative))
+
+    status, err = kmpipe(capsys, "validate", material_path, "-o", tmp_path / "report")
+    assert status == 0, err
+    report = json.loads((tmp_path / "report" / "validation.json").read_text(encoding="utf-8"))
+    assert report["verdict"] in ("pass", "warn")
+
+
+def script_settings() -> dict:
+    return tomllib.loads((F1 / "emulator.toml").read_text(encoding="utf-8"))["samples"]
+
+
+def test_interrupted_session_resumes_where_it_stopped(tmp_path, capsys):
+    saved = 4  # the port vanishes during the 5th reading
+    folder = tmp_path / "F1"
+    fault = Fault("disconnect", "MEDR,1,1,2", occurrence=saved + 1)
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[fault]) as first:
+        status, err = measure(capsys, first.port, folder)
+        before = first.measurements
+    assert status == 2
+    stopped = STOPPED.search(err)
+    assert stopped and (stopped["saved"], stopped["total"]) == (str(saved), str(READINGS)), err
+    assert stopped["folder"] == str(folder)
+    assert len(before) == saved + 1 and not (folder / "manifest.toml").exists()
+    state = json.loads((folder / "session.json").read_text(encoding="utf-8"))
+    _, interrupted = radiance_table(folder / "radiance.csv")
+    assert len(state["readings"]) == saved and list(interrupted) == [r["column"] for r in state["readings"]]
+    for (column, values), measurement in zip(interrupted.items(), before, strict=False):
+        np.testing.assert_array_equal(values, measurement.radiance, err_msg=column)
+
+    # a fresh instrument (after a re-plug) with the rest of the plan's samples under it, one at a time
+    settings = script_settings()
+    samples = read_reflectance_csv(F1 / settings["file"])
+    rest = settings["sequence"][saved:]
+    log = tmp_path / "resumed.jsonl"
+    with Emulator(
+        samples,
+        sequence=rest,
+        illuminant=settings["illuminant"],
+        gain=settings["gain"],
+        noise=settings["noise"],
+        seed=2024,
+        time_scale=TIME_SCALE,
+    ) as second:
+        status, err = measure(capsys, second.port, folder, "--resume", "--record", log)
+        after = second.measurements
+    assert status == 0, err
+    assert len(after) == READINGS - saved  # only the readings not yet saved were measured
+    [connection] = read_session_log(log)
+    assert sum(e.kind == "tx" and e.data == b"MEAS,1\r\n" for e in connection.events) == READINGS - saved
+    assert [m.sample for m in after] == rest
+
+    final_state = json.loads((folder / "session.json").read_text(encoding="utf-8"))
+    assert final_state["readings"][:saved] == state["readings"]  # the saved readings are kept as they were
+    _, final = radiance_table(folder / "radiance.csv")
+    assert len(final) == READINGS
+    columns = list(final)
+    for column in columns[:saved]:
+        np.testing.assert_array_equal(final[column], interrupted[column], err_msg=column)
+    for column, measurement in zip(columns[saved:], after, strict=True):
+        np.testing.assert_array_equal(final[column], measurement.radiance, err_msg=column)
+
+    # against an uninterrupted session of the same plan (tests/data/sessions/complete.expected, same emulator
+    # script and seed): the readings taken before the interruption exactly, the rest up to the instrument noise
+    uninterrupted = SESSIONS / "complete.expected"
+    _, reference = radiance_table(uninterrupted / "radiance.csv")
+    assert list(reference) == columns
+    for column in columns[:saved]:
+        np.testing.assert_array_equal(final[column], reference[column], err_msg=column)
+    assert (folder / "manifest.toml").read_text(encoding="utf-8") == (uninterrupted / "manifest.toml").read_text(
+        encoding="utf-8"
+    )
+    got = read_spectra_csv(folder / "reflectance.csv")
+    want = read_spectra_csv(uninterrupted / "reflectance.csv")
+    assert got.columns == want.columns
+    noise = settings["noise"] * np.sqrt(2)  # relative: two independent readings of the same sample
+    for column in want.columns:
+        ours, theirs = np.asarray(got.column(column)), np.asarray(want.column(column))
+        if column in columns[:saved]:  # the backings and the masstone: measured before the interruption
+            np.testing.assert_array_equal(ours, theirs, err_msg=column)
+        else:
+            relative = np.abs(ours / theirs - 1)
+            assert np.median(relative) < 2 * noise and relative.max() < 8 * noise, column
+
+
+def test_a_noise_line_before_a_reply_does_not_crash_the_session(tmp_path, capsys):
+    """Line noise that happens to hold a line feed gives a "reply" without a reply code: the session must skip
+    it (exit 0), or stop with the clear error that keeps the readings (exit 2), never fail as an internal error."""
+    folder = tmp_path / "F1"
+    noise = Fault("garbage", "MEDR,1,1,1", occurrence=2, garbage=b"\x00\xfe\r\n")
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[noise]) as emulator:
+        status, err = measure(capsys, emulator.port, folder)
+        truth = emulator.measurements
+    assert status in (0, 2), err
+    _, radiance = radiance_table(folder / "radiance.csv")
+    for (column, values), measurement in zip(radiance.items(), truth, strict=False):
+        np.testing.assert_array_equal(values, measurement.radiance, err_msg=column)
+    if status == 2:
+        stopped = STOPPED.search(err)
+        assert stopped and int(stopped["saved"]) == len(radiance) >= 1, err
+
+
+def test_a_reading_whose_data_are_gone_is_measured_again(tmp_path, capsys):
+    """ER20 (no data) on a spectral block, and on the MEDR,0,0,1 poll that follows (the data really are gone):
+    the reading is tried again, as kmpipe.measure promises for "no data", and the session completes."""
+    folder = tmp_path / "F1"
+    gone = [Fault("no_data", "MEDR,1,1,3", occurrence=4), Fault("no_data", "MEDR,0,0,1", occurrence=4)]
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=gone) as emulator:
+        status, err = measure(capsys, emulator.port, folder)
+        truth = emulator.measurements
+    assert status == 0, err
+    assert len(truth) == READINGS + 1  # the 4th reading measured twice
+    _, radiance = radiance_table(folder / "radiance.csv")
+    assert len(radiance) == READINGS
+    np.testing.assert_array_equal(radiance["masstone"], truth[4].radiance)
+
+
+# -------------------------------------------------------------------------------------------------- bad input
+
+
+def edited_plan(tmp_path: Path, old: str, new: str) -> Path:
+    text = PLAN.read_text(encoding="utf-8")
+    assert old in text
+    path = tmp_path / "plan.toml"
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "lines", "field"),
+    [
+        ("repeats = 1", "repaets = 1", (10,), "instrument.repaets"),  # a typo'd key
+        ('over = "white"\nthickness = "15 um"', 'over = "grey"\nthickness = "15 um"', (29,), "film[2].over"),
+        # no thickness, unattended: the [[film]] table or its first key
+        ('over = "black"\nthickness = "15 um"\n', 'over = "black"\n', (24, 25), "film[1].thickness"),
+    ],
+    ids=["typo", "unknown-backing", "no-thickness"],
+)
+def test_bad_plan_names_file_line_and_field(tmp_path, capsys, old, new, lines, field):
+    plan = edited_plan(tmp_path, old, new)
+    folder = tmp_path / "F1"
+    status, err = measure(capsys, str(tmp_path / "no-port"), folder, plan=plan)
+    assert status == 2
+    assert any(f"{plan}, line {line}:" in err for line in lines), err
+    assert f"field '{field}'" in err, err
+    assert not (folder / "session.json").exists() and not (folder / "radiance.csv").exists()
+
+
+def test_a_port_that_does_not_exist(tmp_path, capsys):
+    port = tmp_path / "ttyACM9"
+    status, err = measure(capsys, str(port), tmp_path / "F1", "--record", tmp_path / "s.jsonl")
+    assert status == 2
+    assert "--port" in err and str(port) in err, err
+    assert not (tmp_path / "s.jsonl").exists()  # nothing was exchanged: no log
+    assert not (tmp_path / "F1" / "session.json").exists()
+
+
+def test_a_folder_with_a_session_is_not_started_afresh(tmp_path, capsys):
+    folder = tmp_path / "F1"
+    status, _ = measure(capsys, f"replay://{SESSIONS / 'over_range.jsonl'}", folder)
+    assert status == 2  # a stopped session: 4 readings
+    files = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert set(files) == {"radiance.csv", "session.json"}
+
+    status, err = measure(capsys, f"replay://{SESSIONS / 'complete.jsonl'}", folder)
+    assert status == 2
+    assert str(folder) in err and "--resume" in err, err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == files
