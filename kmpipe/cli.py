@@ -327,6 +327,42 @@ def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def _cmd_card(args: argparse.Namespace, console: Console) -> int:
+    from instruments.drawdown_card import LayoutError, default_layout, load_layout, write_card, write_layout
+
+    if args.output.suffix.lower() not in (".png", ".pdf"):
+        raise InputError("expected a .png or .pdf file name", path=args.output, field="-o")
+    if args.layout is not None:
+        try:
+            layout = load_layout(args.layout)
+        except LayoutError as err:
+            raise InputError(str(err), path=args.layout) from None
+    else:
+        layout = default_layout()
+        layout_path = args.output.with_suffix(".layout.toml")
+        write_layout(layout, layout_path)
+        console.print(f"wrote the layout {layout_path} (kmpipe ingest-raw reads it)", highlight=False)
+    write_card(layout, args.output)
+    console.print(f"wrote the card {args.output}: print it at 100 % scale", highlight=False)
+    return EXIT_OK
+
+
+def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.ingest_raw import ingest_raw
+
+    manifest = ingest_raw(
+        args.photos,
+        args.layout,
+        args.output,
+        rois=args.roi or [],
+        name=args.name,
+        thickness=args.thickness,
+        polarization_factor=args.polarization_factor,
+    )
+    console.print(f"wrote {args.output / 'reflectance.csv'} and {manifest}", highlight=False)
+    return EXIT_OK
+
+
 def _positive_arg(text: str) -> float:
     try:
         value = float(text)
@@ -443,6 +479,31 @@ def build_parser() -> argparse.ArgumentParser:
         "--time-scale", type=_positive_arg, help="multiply instrument times (e.g. 0.1; default: the script's, else 1)"
     )
     emulate.set_defaults(run=_cmd_emulate)
+
+    card = commands.add_parser(
+        "card", help="write a printable drawdown card (black and white backings, white patch, ArUco markers)"
+    )
+    card.add_argument("-o", "--output", type=Path, required=True, help="CARD.pdf or CARD.png")
+    card.add_argument("--layout", type=Path, help="layout TOML (default: the built-in layout, written beside the card)")
+    card.set_defaults(run=_cmd_card)
+
+    ingest_raw = commands.add_parser(
+        "ingest-raw",
+        help="cross-polarized RAW photos of a drawdown card to per-channel reflectance and a sample manifest",
+    )
+    ingest_raw.add_argument("photos", nargs="+", type=Path, help="RAW photos (DNG, CR2, NEF, ARW ...) of one card")
+    ingest_raw.add_argument("--layout", type=Path, required=True, help="the card's layout TOML")
+    ingest_raw.add_argument("-o", "--output", type=Path, required=True, help="sample folder to write")
+    ingest_raw.add_argument("--roi", action="append", metavar="NAME=x,y,w,h", help="a region in pixels (no markers)")
+    ingest_raw.add_argument("--name", help="sample name (default: the output folder's name)")
+    ingest_raw.add_argument("--thickness", help="film thickness, e.g. '30 um', for film regions that do not give one")
+    ingest_raw.add_argument(
+        "--polarization-factor",
+        type=_positive_arg,
+        default=1.0,
+        help="analyzer transmission of the reference over that of the sample (1: white patch in the same photo)",
+    )
+    ingest_raw.set_defaults(run=_cmd_ingest_raw)
     return parser
 
 

@@ -1,0 +1,221 @@
+"""Cross-polarized RAW photos of a drawdown card to per-channel reflectance: ``kmpipe ingest-raw``.
+
+Each photo is decoded to linear camera RGB (:mod:`instruments.raw_photo`), the card is found by its ArUco
+markers and rectified (:mod:`instruments.drawdown_card`), and every region of the layout is sampled away from its
+edges with a trimmed mean. Reflectance per channel = region / white reference patch x the patch's reflectance x
+``polarization_factor``. The white patch lies in the same photo behind the same crossed polarizers, so both lose
+the same half of their diffuse light and the factor is 1; the thesis (section 4.2) doubles picked colours because
+it has no such reference: use 2 when the reference value was taken without the analyzer. Several photos of the
+same card become repeats, so their spread is the noise floor that ``kmpipe validate`` uses.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from instruments.drawdown_card import (
+    CardNotFound,
+    Layout,
+    LayoutError,
+    Region,
+    load_layout,
+    locate_card,
+    paper_illumination,
+    sample_pixels,
+    sample_region,
+)
+from instruments.raw_photo import RawPhotoError, read_raw, tone_mapped_8bit
+from kmpipe.atomic_write import write_text_atomically
+from kmpipe.errors import InputError
+from kmpipe.manifest import parse_thickness_mm
+from kmpipe.spectra import SpectralTable, write_spectra_csv
+
+#: Largest fraction of a region's pixels that may be clipped (at the sensor's white level).
+MAX_CLIPPED = 0.001
+#: A white reference below this (fraction of the white level, brightest channel) is underexposed.
+MIN_WHITE_LEVEL = 0.05
+#: Largest difference between a region's quadrant means, relative to its mean: above it, uneven light or film.
+MAX_NONUNIFORMITY = 0.08
+#: Largest standard deviation of a region's pixels relative to their mean: above it, a highlight or a blemish.
+MAX_VARIATION = 0.05
+CHANNELS = ("R", "G", "B")
+
+
+@dataclass(frozen=True)
+class PhotoRegions:
+    """Per-region trimmed-mean linear camera RGB of one photo."""
+
+    photo: Path
+    camera: str
+    values: dict[str, np.ndarray]  # region name -> (3,)
+
+
+def _roi_region(text: str) -> Region:
+    """NAME=x,y,w,h (pixels of the decoded image) as a Region in 'mm' where 1 mm = 1 pixel."""
+    match = re.fullmatch(r"([A-Za-z0-9_-]+)=(\d+),(\d+),(\d+),(\d+)", text.strip())
+    if not match:
+        raise InputError(f"expected NAME=x,y,w,h in pixels, got {text!r}", field="--roi")
+    name, *numbers = match.groups()
+    x, y, w, h = (float(v) for v in numbers)
+    return Region(name=name, role="", x_mm=x, y_mm=y, w_mm=w, h_mm=h)
+
+
+def _measure_photo(photo: Path, layout: Layout, rois: list[Region]) -> PhotoRegions:
+    """Trimmed means of every region of one photo, corrected for the light's fall-off across the card."""
+    try:
+        raw = read_raw(photo)
+    except RawPhotoError as err:
+        raise InputError(str(err)) from None
+    location = light = None
+    if not rois:
+        try:
+            location = locate_card(tone_mapped_8bit(raw.rgb), layout)
+        except CardNotFound as err:
+            raise InputError(f"{err} (use --roi NAME=x,y,w,h for photos without markers)", path=photo) from None
+        try:
+            light = paper_illumination(raw.rgb, location, layout)
+        except ValueError as err:
+            raise InputError(str(err), path=photo) from None
+    values = {}
+    for region in rois or layout.regions:
+        if region.role == "colorchecker":
+            continue
+        try:
+            sample = (
+                sample_region(raw.rgb, location, region, mask=raw.saturated) if location else _sample_roi(raw, region)
+            )
+        except ValueError as err:
+            raise InputError(str(err), path=photo) from None
+        if sample.masked_fraction > MAX_CLIPPED:
+            raise InputError(
+                f"region {region.name!r} is clipped in {sample.masked_fraction:.1%} of its pixels: lower the exposure",
+                path=photo,
+            )
+        variation = np.max(np.asarray(sample.std) / np.maximum(np.abs(sample.mean), 1e-12))
+        if np.max(sample.uniformity) > MAX_NONUNIFORMITY or variation > MAX_VARIATION:
+            raise InputError(
+                f"region {region.name!r} is uneven (quadrants differ by {np.max(sample.uniformity):.0%}, pixels vary "
+                f"by {variation:.0%}): a specular highlight (are the polarizers crossed?), uneven light or film",
+                path=photo,
+            )
+        value = np.asarray(sample.mean, dtype=np.float64)
+        if region.role == "white_reference" and np.max(value) < MIN_WHITE_LEVEL:
+            raise InputError(
+                f"the white reference reads {np.max(value):.1%} of the sensor's range: underexposed, increase the "
+                "exposure",
+                path=photo,
+            )
+        if light is not None:
+            centre = [region.x_mm + region.w_mm / 2, region.y_mm + region.h_mm / 2]
+            value = value / light(centre)
+        values[region.name] = value
+    return PhotoRegions(photo=photo, camera=raw.camera, values=values)
+
+
+def _sample_roi(raw, region: Region):
+    """Sample an axis-aligned pixel rectangle (for --roi) with the same statistics as a card region."""
+    x, y, w, h = (round(v) for v in (region.x_mm, region.y_mm, region.w_mm, region.h_mm))
+    height, width = raw.rgb.shape[:2]
+    if x < 0 or y < 0 or x + w > width or y + h > height or w < 4 or h < 4:
+        raise InputError(f"--roi {region.name} lies outside the {width} x {height} image", field="--roi")
+    return sample_pixels(raw.rgb[y : y + h, x : x + w], raw.saturated[y : y + h, x : x + w], name=region.name)
+
+
+def ingest_raw(
+    photos: list[Path],
+    layout_path: Path,
+    out_dir: Path,
+    *,
+    rois: list[str] = (),
+    name: str | None = None,
+    thickness: str | None = None,
+    polarization_factor: float = 1.0,
+) -> Path:
+    """Write reflectance.csv (3 channels, one column per region and photo) and manifest.toml; returns the manifest."""
+    try:
+        layout = load_layout(layout_path)
+    except LayoutError as err:
+        raise InputError(str(err)) from None  # the message names the file already
+    roi_regions = [_roi_region(text) for text in rois]
+    if roi_regions:
+        by_name = {r.name: r for r in layout.regions}
+        unknown = [r.name for r in roi_regions if r.name not in by_name]
+        if unknown:
+            raise InputError(f"names region {unknown[0]!r}, which the layout does not have", field="--roi")
+        roi_regions = [
+            Region(**{**vars(by_name[r.name]), **{k: getattr(r, k) for k in ("x_mm", "y_mm", "w_mm", "h_mm")}})
+            for r in roi_regions
+        ]
+    measured = [_measure_photo(photo, layout, roi_regions) for photo in photos]
+    white = [r for r in layout.regions if r.role == "white_reference"]
+    if not white:
+        raise InputError('has no region with role = "white_reference" to normalize by', path=layout_path)
+    reference = white[0]
+    reference_reflectance = float(reference.metadata.get("reflectance", 0.9))
+
+    def reflectance(photo: PhotoRegions, region: str) -> np.ndarray:
+        return photo.values[region] / photo.values[reference.name] * reference_reflectance * polarization_factor
+
+    sample_name = name or Path(out_dir).name
+    columns: dict[str, np.ndarray] = {}
+    lines = [
+        "# Written by kmpipe ingest-raw: camera-RGB reflectance of the card's regions.",
+        "[sample]",
+        f'name = "{sample_name}"',
+        "",
+    ]
+    for region in layout.regions:
+        if region.role == "backing":
+            columns[region.name] = np.mean([reflectance(p, region.name) for p in measured], axis=0)
+            lines += [
+                "[[backing]]",
+                f'name = "{region.name}"',
+                'file = "reflectance.csv"',
+                f'column = "{region.name}"',
+                "",
+            ]
+    for region in layout.regions:
+        if region.role != "film":
+            continue
+        for i, photo in enumerate(measured, 1):
+            column = region.name if len(measured) == 1 else f"{region.name}_{i}"
+            columns[column] = reflectance(photo, region.name)
+            over = region.metadata.get("over")
+            film_thickness = region.metadata.get("thickness", thickness)
+            if over is None or film_thickness is None:
+                raise InputError(
+                    f"film region {region.name!r} needs 'over' (a backing region) and a thickness: add "
+                    'thickness = "30 um" to it in the layout, or pass --thickness',
+                    path=layout_path,
+                )
+            try:
+                parse_thickness_mm(str(film_thickness))
+            except ValueError as err:
+                raise InputError(str(err), field="--thickness") from None
+            lines += [
+                "[[film]]",
+                'file = "reflectance.csv"',
+                f'column = "{column}"',
+                f'over = "{over}"',
+                f'thickness = "{film_thickness}"',
+                "",
+            ]
+    camera = measured[0].camera
+    metadata = {
+        "quantity": "reflectance",
+        "units": "1",
+        "channels": f"linear camera RGB of {camera} (no white balance), not device-independent",
+        "white_reference": f"region {reference.name} x {reference_reflectance:g}",
+        "polarization_factor": f"{polarization_factor:g}",
+        "photos": ", ".join(p.photo.name for p in measured),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = SpectralTable(None, CHANNELS, tuple(columns), np.array(list(columns.values())), metadata)
+    write_spectra_csv(table, out_dir / "reflectance.csv")
+    manifest = out_dir / "manifest.toml"
+    write_text_atomically(manifest, "\n".join(lines))
+    return manifest
