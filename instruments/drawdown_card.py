@@ -885,9 +885,9 @@ def paper_illumination(
     ``keep_out_mm`` (outlines, labels and quiet zones), and inside the photo. Medians over ``cell_mm`` cells (robust
     to printed text) are fitted per channel with a quadratic surface in the photo's (x, y) by least squares (lens
     vignetting, 1 - v r^2, is quadratic there, not in card coordinates once the card is seen in perspective),
-    refitted once without cells more than 3 median absolute deviations off. Dividing a region's reading by the surface at its
-    centre, and the white reference's likewise, removes the light's fall-off between them. Raises ValueError when
-    fewer than 12 cells of bare paper are visible.
+    refitted once without cells more than 3 median absolute deviations off. Dividing a region's reading by the
+    surface at its centre, and the white reference's likewise, removes the light's fall-off between them. Raises
+    ValueError when fewer than 12 cells of bare paper are visible.
     """
     image = np.asarray(linear_image, dtype=np.float64)
     if image.ndim == 2:
