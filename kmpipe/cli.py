@@ -37,24 +37,24 @@ def _saunderson_arg(text: str) -> tuple[float, float]:
     return k1, k2
 
 
-def _noise_arg(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < 0.5:
-        raise argparse.ArgumentTypeError(f"expected a standard deviation of reflectance in (0, 0.5), got {text!r}")
-    return value
+def _number_arg(low: float, high: float, *, low_included: bool, what: str):
+    """An argparse type: a number in (low, high) (or [low, high) with ``low_included``), else a clear message."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not ((low <= value if low_included else low < value) and value < high):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _smoothness_arg(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
+_noise_arg = _number_arg(0.0, 0.5, low_included=False, what="a standard deviation of reflectance in (0, 0.5)")
+_smoothness_arg = _number_arg(0.0, float("inf"), low_included=True, what="a finite number >= 0")
+_positive_arg = _number_arg(0.0, float("inf"), low_included=False, what="a positive number")
 
 
 def _grid_arg(text: str) -> str:
@@ -361,16 +361,6 @@ def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
     )
     console.print(f"wrote {args.output / 'reflectance.csv'} and {manifest}", highlight=False)
     return EXIT_OK
-
-
-def _positive_arg(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -67,8 +67,8 @@ class PlanBacking(_Strict):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
 
 
-class PlanMasstone(_Strict):
-    thickness: str | None = None
+class _WithThickness(_Strict):
+    thickness: str | None = None  # e.g. "30 um"; checked like the manifest's
 
     @field_validator("thickness")
     @classmethod
@@ -78,16 +78,12 @@ class PlanMasstone(_Strict):
         return value
 
 
-class PlanFilm(_Strict):
+class PlanMasstone(_WithThickness):
+    pass
+
+
+class PlanFilm(_WithThickness):
     over: str
-    thickness: str | None = None
-
-    @field_validator("thickness")
-    @classmethod
-    def _thickness(cls, value):
-        if value is not None:
-            parse_thickness_mm(value)
-        return value
 
 
 class Plan(_Strict):

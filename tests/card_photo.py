@@ -10,15 +10,51 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import colour
 import cv2
 import numpy as np
 from dng_fixtures import mosaic, write_dng
 
 from instruments.drawdown_card import Layout, render_card
+from kmpipe.colorimetry import reflectance_to_XYZ
 from kmpipe.kubelka_munk import reflectance_over_background
 from kmpipe.manifest import parse_thickness_mm
 
 PX_PER_MM = 6.0
+
+# A synthetic ColorChecker Classic Mini for the ``colorchecker`` slot. The chart body is 57 x 83 mm (portrait) of
+# black (CHART_BLACK), with 11 mm patches on a 13 mm pitch (2 mm black gaps, 3.5 mm black border). The standard
+# chart reads in 4 rows of 6 (dark skin top-left, black bottom-right) when landscape; here it is turned 90 degrees
+# clockwise into the portrait slot, so dark skin is at the top-right and the neutral row is the left column, white at
+# the top. Patch colours are the linear camera RGB of a camera whose camera RGB -> XYZ matrix is TRUE_CAMERA_MATRIX:
+# camera_rgb = XYZ @ inv(TRUE_CAMERA_MATRIX).T, XYZ of the 'ColorChecker N Ohta' spectra under D65 (CIE 1931 2 deg,
+# 5 nm, Y = 100 for the perfect white), the scale chosen so that the white patch's largest channel is 0.9.
+CHART_BODY_MM = (57.0, 83.0)  # width, height of the portrait chart
+CHART_PITCH_MM = 13.0
+CHART_PATCH_MM = 11.0
+CHART_BLACK = 0.03  # linear camera RGB of the black body and gaps
+
+
+def _chart_reference_XYZ() -> np.ndarray:
+    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    wavelengths = np.arange(380.0, 781.0, 5.0)
+    spectra = np.array([sd.copy().align(colour.SpectralShape(380, 780, 5)).values for sd in sds.values()])
+    return reflectance_to_XYZ(spectra, wavelengths, "D65", "2")  # (24, 3)
+
+
+def _true_camera_matrix() -> np.ndarray:
+    # Camera sensitivities as mixtures of the CMFs (camera RGB = XYZ @ C.T): broad, overlapping, as real sensors are.
+    C = np.array([[0.80, 0.35, -0.10], [-0.25, 1.10, 0.12], [0.05, -0.15, 0.95]])
+    white = _chart_reference_XYZ()[18] @ C.T
+    C = C * (0.9 / white.max())
+    return np.linalg.inv(C)
+
+
+TRUE_CAMERA_MATRIX = _true_camera_matrix()
+"""(3, 3) camera RGB -> XYZ (Y = 100 scale) of the synthetic camera: XYZ = camera_rgb @ TRUE_CAMERA_MATRIX.T."""
+
+CHART_CAMERA_RGB = _chart_reference_XYZ() @ np.linalg.inv(TRUE_CAMERA_MATRIX).T
+"""(24, 3) linear camera RGB (reflectance scale) of the chart's patches in the standard order, dark skin first."""
 
 
 @dataclass(frozen=True)
@@ -37,6 +73,33 @@ class Scene:
     noise: float = 0.002  # relative photon-like noise per pixel
     highlight: str | None = None  # region name that gets a specular highlight (polarizers not crossed)
     hide_marker: int | None = None
+    colorchecker: bool = False  # paint the synthetic ColorChecker (CHART_CAMERA_RGB) into the ``colorchecker`` slot
+    colorchecker_offset_mm: tuple[float, float] = (0.0, 0.0)  # chart centre from the slot centre (placed by hand)
+    colorchecker_angle_deg: float = 0.0  # chart rotation in the slot, clockwise on the card
+
+
+def paint_colorchecker(card: np.ndarray, layout: Layout, scene: Scene) -> None:
+    """Paint the synthetic chart into ``card`` (H, W, 3 at PX_PER_MM), centred on the colorchecker slot + offset."""
+    slot = next(r for r in layout.regions if r.role == "colorchecker")
+    cx = slot.x_mm + slot.w_mm / 2 + scene.colorchecker_offset_mm[0]
+    cy = slot.y_mm + slot.h_mm / 2 + scene.colorchecker_offset_mm[1]
+    yy, xx = np.mgrid[0 : card.shape[0], 0 : card.shape[1]]
+    x, y = (xx + 0.5) / PX_PER_MM - cx, (yy + 0.5) / PX_PER_MM - cy  # pixel centres, mm from the chart centre
+    a = np.deg2rad(scene.colorchecker_angle_deg)
+    u, v = np.cos(a) * x + np.sin(a) * y, -np.sin(a) * x + np.cos(a) * y  # chart-local portrait coordinates
+    w, h = CHART_BODY_MM
+    body = (np.abs(u) <= w / 2) & (np.abs(v) <= h / 2)
+    card[body] = CHART_BLACK
+    # Portrait (u right, v down) -> landscape reading (p right, q down), turning the chart back counter-clockwise.
+    p, q = v, -u
+    gap = CHART_PITCH_MM - CHART_PATCH_MM
+    border_p, border_q = (h - (6 * CHART_PITCH_MM - gap)) / 2, (w - (4 * CHART_PITCH_MM - gap)) / 2
+    for index, rgb in enumerate(CHART_CAMERA_RGB):
+        row, col = divmod(index, 6)
+        p0 = -h / 2 + border_p + col * CHART_PITCH_MM
+        q0 = -w / 2 + border_q + row * CHART_PITCH_MM
+        inside = body & (p >= p0) & (p < p0 + CHART_PATCH_MM) & (q >= q0) & (q < q0 + CHART_PATCH_MM)
+        card[inside] = rgb
 
 
 def region_reflectances(layout: Layout, scene: Scene) -> dict[str, np.ndarray]:
@@ -71,6 +134,8 @@ def linear_card(layout: Layout, scene: Scene) -> np.ndarray:
         x0, y0 = round(marker.x_mm * PX_PER_MM), round(marker.y_mm * PX_PER_MM)
         size = round(marker.size_mm * PX_PER_MM)
         card[y0 : y0 + size, x0 : x0 + size] = 0.85
+    if scene.colorchecker:
+        paint_colorchecker(card, layout, scene)
     return card
 
 
