@@ -397,3 +397,30 @@ def test_a_folder_with_a_session_is_not_started_afresh(tmp_path, capsys):
     assert status == 2
     assert str(folder) in err and "--resume" in err, err
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == files
+
+
+def test_replay_clock_follows_the_recording_in_fast_timing():
+    """The replay port's clock (used by the driver's deadlines) is the recorded time, jumping to the next recorded
+    write where the recording has nothing more to read: a lost completion line costs no real waiting."""
+    import serial
+
+    import instruments.urlhandler  # noqa: F401  (registers replay://)
+    from instruments.session_log import read_session_log
+
+    log = SESSIONS / "missing_completion.jsonl"
+    events = read_session_log(log)[0].events
+    port = serial.serial_for_url(f"replay://{log.resolve()}", timeout=0.05)
+    first_tx = next(e for e in events if e.kind == "tx")
+    port.write(first_tx.data)
+    assert port.clock() == first_tx.t
+    next_tx = next(e for e in events if e.kind == "tx" and e.t > first_tx.t)
+    seen = []
+    for _ in range(10_000):  # the first reply's chunks and timeouts, then silence until the next write
+        chunk = port.read(256)
+        seen.append(port.clock())
+        if not chunk and port.clock() == next_tx.t:
+            break
+    else:
+        pytest.fail("the replay clock never reached the next recorded write")
+    assert seen == sorted(seen)  # never goes back
+    port.close()

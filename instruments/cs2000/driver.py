@@ -55,6 +55,9 @@ class CS2000:
     def __init__(self, port: serial.SerialBase, *, reply_timeout: float = REPLY_TIMEOUT) -> None:
         self.port = port
         self.port.timeout = POLL
+        # A replayed port keeps the recording's time (deadlines pass as they did, without waiting for them).
+        self._clock = getattr(port, "clock", time.monotonic)
+        self._sleep = getattr(port, "sleep", time.sleep)
         self.reply_timeout = reply_timeout
         self._pending = b""  # bytes received after the last terminator
 
@@ -81,7 +84,7 @@ class CS2000:
         Commands are sent with CR LF, so replies end with CR LF: a line ends at LF. Bytes after it stay
         pending for the next reply (the second line of MEAS may arrive right behind the first).
         """
-        deadline = time.monotonic() + seconds
+        deadline = self._clock() + seconds
         while True:
             end = self._pending.find(b"\n")
             if end >= 0:
@@ -89,7 +92,7 @@ class CS2000:
                 if line.strip():
                     return line
                 continue
-            if time.monotonic() > deadline:
+            if self._clock() > deadline:
                 raise InstrumentTimeout(command, self._pending, seconds)
             chunk = self.port.read(max(1, self.port.in_waiting))
             if chunk:
@@ -103,9 +106,9 @@ class CS2000:
         Lines that hold no reply code at all (line noise ending in a line feed) are skipped, not taken as the
         answer: the instrument's real reply is still to come.
         """
-        deadline = time.monotonic() + seconds
+        deadline = self._clock() + seconds
         while True:
-            line = self._read_line(max(deadline - time.monotonic(), 0.0), command, tick)
+            line = self._read_line(max(deadline - self._clock(), 0.0), command, tick)
             try:
                 return protocol.parse_reply(line)
             except protocol.ProtocolError:
@@ -188,10 +191,10 @@ class CS2000:
         self._discard_stale()
         self.port.write(command)
         self.port.flush()
-        started = time.monotonic()
+        started = self._clock()
         first = self._read_reply(first_timeout, command)
         announced = protocol.parse_measure_time(first)
-        tick = None if progress is None else (lambda: progress(time.monotonic() - started, announced))
+        tick = None if progress is None else (lambda: progress(self._clock() - started, announced))
         try:
             completion = self._read_reply(announced + margin, command, tick)
         except InstrumentTimeout:
@@ -205,7 +208,7 @@ class CS2000:
 
         ER20 (no data) also means idle: nothing is being measured, there is just nothing to read.
         """
-        deadline = time.monotonic() + seconds
+        deadline = self._clock() + seconds
         while True:
             reply = self.query("MEDR", 0, 0, 1)
             if reply.code in ("OK00", "ER20"):
@@ -213,15 +216,15 @@ class CS2000:
             error = CS2000Error(reply.code)
             if not error.busy:
                 raise error
-            if time.monotonic() > deadline:
+            if self._clock() > deadline:
                 raise InstrumentTimeout(b"MEDR,0,0,1", b"", seconds)
-            time.sleep(0.5)
+            self._sleep(0.5)
 
     def cancel(self) -> None:
         """MEAS,0: stop a measurement; a late completion line may still come, so the input is drained."""
         self.port.write(protocol.format_command("MEAS", 0))
         self.port.flush()
-        time.sleep(0.2)
+        self._sleep(0.2)
         self._discard_stale()
 
     def read_spectrum(self) -> np.ndarray:

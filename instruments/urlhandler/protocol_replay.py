@@ -211,6 +211,7 @@ class Serial(SerialBase):
         self._cursors = [_Cursor(connection) for connection in connections]
         self._next = 0
         self._cursor = None
+        self._virtual = 0.0
 
     @property
     def header(self) -> dict[str, Any]:
@@ -231,6 +232,7 @@ class Serial(SerialBase):
             self._load(self._port)
         if self._next >= len(self._cursors):
             raise SerialException(f"{self._path}: every recorded connection has been replayed already")
+        self._virtual = 0.0
         self._cursor = self._cursors[self._next]
         self._next += 1
         self._cursor.start(time.monotonic())
@@ -305,6 +307,22 @@ class Serial(SerialBase):
             cursor.finish_tx_entry(time.monotonic())
         return len(data)
 
+    def clock(self) -> float:
+        """Seconds on the recording's clock, for a driver's deadlines (``time.monotonic`` in real timing).
+
+        In fast timing it is the recorded time of the last event replayed, and where the recording has nothing
+        more to read before the driver's next write, the time of that write: the original driver waited until
+        then, so its deadline has passed on this clock too, without the replay waiting for it.
+        """
+        if self._timing == "real" or self._cursor is None:
+            return time.monotonic()
+        return max(self._virtual, self._cursor.anchor_t)
+
+    def sleep(self, seconds: float) -> None:
+        """A driver's pause: real in real timing, none in fast timing (the recorded events carry the time)."""
+        if self._timing == "real":
+            time.sleep(seconds)
+
     def _sleep_until(self, clock: float) -> None:
         """Sleep until the monotonic clock reads ``clock`` (s)."""
         delay = clock - time.monotonic()
@@ -314,6 +332,8 @@ class Serial(SerialBase):
     def _silence(self, cursor: _Cursor, event: LogEvent | None) -> bytes:
         """A read that the recording has nothing for at this point: a timeout, or the end of the device."""
         line = cursor.next_tx_line()
+        if line is not None:
+            self._virtual = max(self._virtual, cursor.tx[cursor.tx_i].t)
         if line is None:
             raise SerialException(f"disconnected: the recording {self._path} (connection at line "
                                   f"{cursor.connection.line}) ends here, and the driver reads on")
@@ -335,6 +355,7 @@ class Serial(SerialBase):
             event = cursor.next_rx()
             if event is None or not cursor.available(event):
                 return self._silence(cursor, event)
+            self._virtual = max(self._virtual, event.t)
             if event.kind == "rx":
                 if self._timing == "real" and not cursor.rx_off:
                     self._sleep_until(cursor.due(event))
