@@ -15,8 +15,10 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from instruments.colorchecker import ColorCheckerNotFound, find_colorchecker, sample_colorchecker_in_slot
 from instruments.drawdown_card import (
     CardNotFound,
     Layout,
@@ -30,6 +32,8 @@ from instruments.drawdown_card import (
 )
 from instruments.raw_photo import RawPhotoError, read_raw, tone_mapped_8bit
 from kmpipe.atomic_write import write_text_atomically
+from kmpipe.colorimetry import white_XYZ
+from kmpipe.colour_correction import fit_camera_to_XYZ
 from kmpipe.errors import InputError
 from kmpipe.manifest import parse_thickness_mm
 from kmpipe.spectra import SpectralTable, write_spectra_csv
@@ -47,11 +51,44 @@ CHANNELS = ("R", "G", "B")
 
 @dataclass(frozen=True)
 class PhotoRegions:
-    """Per-region trimmed-mean linear camera RGB of one photo."""
+    """Per-region trimmed-mean linear camera RGB of one photo (light fall-off removed), and its ColorChecker."""
 
     photo: Path
     camera: str
     values: dict[str, np.ndarray]  # region name -> (3,)
+    chart: np.ndarray | None = None  # (24, 3) patch means on the same scale, when a chart was found
+    chart_clipped: np.ndarray | None = None  # (24,) fraction of clipped pixels per patch
+    chart_method: str = ""
+
+
+def _find_chart(raw, location, layout: Layout, light):
+    """The ColorChecker in the layout's colorchecker slot: cv2.mcc on a display copy, else the slot's geometry.
+
+    Returns (means (24, 3) divided by the light at each patch, clipped fractions, method) or None.
+    """
+    slots = [r for r in layout.regions if r.role == "colorchecker"]
+    if not slots:
+        return None
+    slot = slots[0]
+    grow = 3.0
+    corners = [
+        [slot.x_mm - grow, slot.y_mm - grow],
+        [slot.x_mm + slot.w_mm + grow, slot.y_mm - grow],
+        [slot.x_mm + slot.w_mm + grow, slot.y_mm + slot.h_mm + grow],
+        [slot.x_mm - grow, slot.y_mm + slot.h_mm + grow],
+    ]
+    sample = find_colorchecker(
+        tone_mapped_8bit(raw.rgb), raw.rgb, search_polygon_px=location.card_to_image(corners), mask=raw.saturated
+    )
+    if sample is None:
+        try:
+            sample = sample_colorchecker_in_slot(raw.rgb, location, slot, orientation="auto", mask=raw.saturated)
+        except (ColorCheckerNotFound, ValueError):
+            return None
+    centres_mm = cv2.perspectiveTransform(
+        np.asarray(sample.centres_px, dtype=np.float64).reshape(-1, 1, 2), np.linalg.inv(location.homography)
+    ).reshape(-1, 2)
+    return sample.mean / light(centres_mm), np.asarray(sample.clipped_fraction), sample.method
 
 
 def _roi_region(text: str) -> Region:
@@ -113,7 +150,11 @@ def _measure_photo(photo: Path, layout: Layout, rois: list[Region]) -> PhotoRegi
             centre = [region.x_mm + region.w_mm / 2, region.y_mm + region.h_mm / 2]
             value = value / light(centre)
         values[region.name] = value
-    return PhotoRegions(photo=photo, camera=raw.camera, values=values)
+    chart = _find_chart(raw, location, layout, light) if location is not None else None
+    if chart is None:
+        return PhotoRegions(photo=photo, camera=raw.camera, values=values)
+    means, clipped, method = chart
+    return PhotoRegions(photo, raw.camera, values, chart=means, chart_clipped=clipped, chart_method=method)
 
 
 def _sample_roi(raw, region: Region):
@@ -157,8 +198,32 @@ def ingest_raw(
     reference = white[0]
     reference_reflectance = float(reference.metadata.get("reflectance", 0.9))
 
+    def camera_reflectance(photo: PhotoRegions, values: np.ndarray) -> np.ndarray:
+        return values / photo.values[reference.name] * reference_reflectance * polarization_factor
+
+    # A ColorChecker in any photo: fit camera RGB -> XYZ on the charts (reflectance scale, averaged over the photos)
+    # and give every region as X/Xn, Y/Yn, Z/Zn (relative to the perfect white): device-independent channels.
+    charted = [p for p in measured if p.chart is not None]
+    fit = white = None
+    channels, description = (
+        CHANNELS,
+        f"linear camera RGB of {measured[0].camera} (no white balance), not device-independent",
+    )
+    if charted:
+        chart = np.mean([camera_reflectance(p, p.chart) for p in charted], axis=0)
+        clipped = np.max([p.chart_clipped for p in charted], axis=0)
+        fit = fit_camera_to_XYZ(chart, illuminant="D65", observer="2", clipped_fraction=clipped)
+        white = white_XYZ(np.arange(380.0, 781.0, 5.0), "D65", "2")
+        channels = ("X", "Y", "Z")
+        description = (
+            f"CIE XYZ relative to the perfect white (X/Xn, Y/Yn, Z/Zn; CIE 1931 2 deg, D65) from the camera RGB of "
+            f"{measured[0].camera} through a ColorChecker fit ({charted[0].chart_method}, {len(charted)} photo(s), "
+            f"mean Delta E 2000 {fit.mean_delta_E:.2f}, max {fit.max_delta_E:.2f})"
+        )
+
     def reflectance(photo: PhotoRegions, region: str) -> np.ndarray:
-        return photo.values[region] / photo.values[reference.name] * reference_reflectance * polarization_factor
+        rgb = camera_reflectance(photo, photo.values[region])
+        return rgb if fit is None else fit.apply(rgb) / white
 
     sample_name = name or Path(out_dir).name
     columns: dict[str, np.ndarray] = {}
@@ -204,17 +269,16 @@ def ingest_raw(
                 f'thickness = "{film_thickness}"',
                 "",
             ]
-    camera = measured[0].camera
     metadata = {
         "quantity": "reflectance",
         "units": "1",
-        "channels": f"linear camera RGB of {camera} (no white balance), not device-independent",
+        "channels": description,
         "white_reference": f"region {reference.name} x {reference_reflectance:g}",
         "polarization_factor": f"{polarization_factor:g}",
         "photos": ", ".join(p.photo.name for p in measured),
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    table = SpectralTable(None, CHANNELS, tuple(columns), np.array(list(columns.values())), metadata)
+    table = SpectralTable(None, channels, tuple(columns), np.array(list(columns.values())), metadata)
     write_spectra_csv(table, out_dir / "reflectance.csv")
     manifest = out_dir / "manifest.toml"
     write_text_atomically(manifest, "\n".join(lines))

@@ -174,3 +174,27 @@ def test_card_command_writes_a_printable_card_and_its_layout(tmp_path, capsys):
     assert (tmp_path / "card.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     status, _, err = run(capsys, "card", "-o", tmp_path / "card.svg")
     assert status == 2 and "png or .pdf" in err
+
+
+def test_a_colorchecker_in_the_photo_gives_device_independent_channels(tmp_path, capsys):
+    """With the chart in its slot, regions come out as X/Xn, Y/Yn, Z/Zn: the synthetic camera's true matrix maps
+    the regions' camera reflectance to XYZ, so the expected values are known independently of the fit."""
+    from card_photo import TRUE_CAMERA_MATRIX
+
+    from kmpipe.colorimetry import white_XYZ
+
+    layout = default_layout()
+    write_layout(layout, tmp_path / "layout.toml")
+    photo = tmp_path / "chart.dng"
+    photograph(layout, replace(SCENE, colorchecker=True), photo)
+    status, _, err = run(
+        capsys, "ingest-raw", photo, "--layout", tmp_path / "layout.toml", "-o", tmp_path / "x", "--thickness", "30 um"
+    )
+    assert status == 0, err
+    table = read_spectra_csv(tmp_path / "x" / "reflectance.csv")
+    assert table.channels == ("X", "Y", "Z") and "ColorChecker" in table.metadata["channels"]
+    white = white_XYZ(np.arange(380.0, 781.0, 5.0), "D65", "2")
+    truth = region_reflectances(layout, SCENE)
+    for column in table.columns:
+        expected = TRUE_CAMERA_MATRIX @ truth[column] / white
+        np.testing.assert_allclose(table.column(column), expected, rtol=5e-3)
