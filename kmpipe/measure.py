@@ -375,6 +375,7 @@ def run_session(
         if record is not None:
             from instruments.session_log import open_recorded
 
+            record.parent.mkdir(parents=True, exist_ok=True)
             port = open_recorded(port_url, record, baudrate=baudrate, rtscts=rtscts)
         else:
             port = serial.serial_for_url(port_url, baudrate=baudrate, rtscts=rtscts)

@@ -1,0 +1,32 @@
+"""The README's demo command, end to end: emulated CS-2000 session, fits, validation reports."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_demo_measures_fits_and_validates(tmp_path):
+    out = tmp_path / "demo"
+    done = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "demo")],
+        env={**os.environ, "KMPIPE_DEMO_OUT": str(out)},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    session = out / "session" / "F1"
+    assert {"radiance.csv", "reflectance.csv", "manifest.toml", "session.json"} <= {p.name for p in session.iterdir()}
+    log_lines = (out / "session" / "F1.jsonl").read_text(encoding="utf-8").splitlines()
+    assert json.loads(log_lines[0])["kmpipe_session_log"] == 1 and len(log_lines) > 50
+    materials = sorted(p.stem for p in (out / "materials").glob("*.json"))
+    assert materials == ["B1", "F1", "F2", "L1", "L2"]
+    summary = json.loads((out / "reports" / "summary.json").read_text(encoding="utf-8"))
+    assert {entry["sample"]: entry["verdict"] for entry in summary}["F1"] == "pass"
+    assert (out / "reports" / "index.html").exists()
