@@ -234,25 +234,35 @@ def field_line(path: Path, field: str) -> int | None:
         return None
 
 
-def load_manifest(path: str | Path) -> Manifest:
-    """Read and validate a sample manifest; InputError (file, line, field) on any problem."""
-    path = Path(path)
+def read_toml(path: Path, what: str) -> tuple[str, dict]:
+    """The text and the parsed TOML of a file people write; InputError naming the file (and line) otherwise."""
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise InputError("the sample manifest does not exist", path=path) from None
+        raise InputError(f"the {what} does not exist", path=path) from None
     except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"cannot read the sample manifest as UTF-8 text ({err})", path=path) from None
+        raise InputError(f"cannot read the {what} as UTF-8 text ({err})", path=path) from None
     try:
-        data = tomllib.loads(text)
+        return text, tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         match = re.search(r"line (\d+)", str(err))
         raise InputError(f"not valid TOML: {err}", path=path, line=int(match.group(1)) if match else None) from None
+
+
+def first_validation_error(err: ValidationError) -> dict:
+    """The error to report of several: a misspelt key shows up twice, as unknown and as missing; the unknown one
+    says more."""
+    return sorted(err.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    """Read and validate a sample manifest; InputError (file, line, field) on any problem."""
+    path = Path(path)
+    text, data = read_toml(path, "sample manifest")
     try:
         return Manifest.model_validate(data)
     except ValidationError as err:
-        # A misspelt key shows up twice, as unknown and as missing: name the unknown one, it says more.
-        first = sorted(err.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
+        first = first_validation_error(err)
         loc = tuple(first["loc"])
         message = first["msg"]
         context = first.get("ctx", {}).get("error")

@@ -13,9 +13,7 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import json
-import re
 import sys
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -30,7 +28,14 @@ from instruments.cs2000.protocol import CS2000Error, ProtocolError
 from kmpipe import __version__
 from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
-from kmpipe.manifest import field_line, format_field, parse_thickness_mm, toml_line
+from kmpipe.manifest import (
+    field_line,
+    first_validation_error,
+    format_field,
+    parse_thickness_mm,
+    read_toml,
+    toml_line,
+)
 from kmpipe.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
 from kmpipe.white import certified_reflectance, radiance_to_reflectance
 
@@ -97,19 +102,11 @@ class Plan(_Strict):
 
 def load_plan(path: Path) -> Plan:
     """Read and check a measurement plan; InputError naming the file, line and field on any problem."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("the measurement plan does not exist", path=path) from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        match = re.search(r"line (\d+)", str(err))
-        raise InputError(f"not valid TOML: {err}", path=path, line=int(match.group(1)) if match else None) from None
+    text, data = read_toml(path, "measurement plan")
     try:
         plan = Plan.model_validate(data)
     except ValidationError as err:
-        first = sorted(err.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
+        first = first_validation_error(err)
         loc = tuple(first["loc"])
         message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
         raise InputError(message, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
