@@ -1,0 +1,126 @@
+"""Image files through OpenImageIO: linear EXR with caller metadata, and 8-bit sRGB PNG.
+
+Files are written to a temporary name in the target directory and renamed, so a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+#: Header attribute values the EXR writer accepts.
+AttributeValue = str | float | int
+
+_CHANNELS = {3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+
+
+def _as_image(pixels: np.ndarray) -> np.ndarray:
+    image = np.asarray(pixels)
+    if image.ndim != 3 or image.shape[2] not in _CHANNELS:
+        raise ValueError(f"expected an image of shape (height, width, 3 or 4), got {image.shape}")
+    return image
+
+
+def _write(path: Path, pixels: np.ndarray, spec: oiio.ImageSpec) -> None:
+    """Write ``pixels`` with ``spec`` to a temporary file beside ``path`` and rename it onto ``path``."""
+    spec.channelnames = _CHANNELS[spec.nchannels]
+    descriptor, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(descriptor)
+    try:
+        output = oiio.ImageOutput.create(temporary)
+        if output is None:
+            raise OSError(f"{path}: OpenImageIO has no writer for this file type: {oiio.geterror()}")
+        if not (output.open(temporary, spec) and output.write_image(pixels) and output.close()):
+            raise OSError(f"{path}: write failed: {output.geterror()}")
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def write_exr(
+    path: str | Path,
+    rgb: np.ndarray,
+    attributes: dict[str, AttributeValue] | None = None,
+    half: bool = True,
+) -> None:
+    """Write a linear image as OpenEXR.
+
+    Parameters
+    ----------
+    path
+        Output file (``.exr``).
+    rgb
+        Linear values (scene-referred, unclamped), shape (height, width, 3 or 4), top row first.
+    attributes
+        Header attributes stored as given, e.g. ``{"product": "...", "shade": "...", "camera_angle_deg": 30.0,
+        "render_mode": "..."}``; values are strings or numbers (floats are stored as 32-bit floats).
+    half
+        Store 16-bit half floats (about 3 significant digits) if true, else 32-bit floats.
+    """
+    image = _as_image(rgb).astype(np.float32)
+    path = Path(path)
+    height, width, channels = image.shape
+    spec = oiio.ImageSpec(width, height, channels, oiio.HALF if half else oiio.FLOAT)
+    for name, value in (attributes or {}).items():
+        if isinstance(value, bool) or not isinstance(value, str | float | int):
+            raise TypeError(f"{path}: header attribute {name!r} must be a string or a number, got {type(value)}")
+        spec.attribute(name, value)
+    _write(path, image, spec)
+
+
+def read_exr(path: str | Path) -> tuple[np.ndarray, dict[str, AttributeValue]]:
+    """Read an EXR: the pixels as float32 (height, width, channels), top row first, and all header attributes."""
+    source = oiio.ImageInput.open(str(path))
+    if source is None:
+        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
+    try:
+        spec = source.spec()
+        pixels = source.read_image(oiio.FLOAT)
+        if pixels is None:
+            raise OSError(f"{path}: read failed: {source.geterror()}")
+        attributes = {attribute.name: attribute.value for attribute in spec.extra_attribs}
+    finally:
+        source.close()
+    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), attributes
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function (IEC 61966-2-1) of linear values, clipped to [0, 1] first; returns [0, 1]."""
+    x = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write linear RGB(A) as an 8-bit sRGB PNG: clip to [0, 1], sRGB-encode colour, round to 0..255.
+
+    Alpha (a 4th channel), if present, is stored linearly.
+    """
+    image = _as_image(rgb).astype(np.float64)
+    encoded = image.copy()
+    encoded[..., :3] = srgb_encode(image[..., :3])
+    encoded[..., 3:] = np.clip(image[..., 3:], 0.0, 1.0)
+    codes = np.rint(encoded * 255.0).astype(np.uint8)
+    height, width, channels = codes.shape
+    spec = oiio.ImageSpec(width, height, channels, oiio.UINT8)
+    spec.attribute("oiio:ColorSpace", "sRGB")
+    _write(Path(path), codes, spec)
+
+
+def read_png(path: str | Path) -> np.ndarray:
+    """Read a PNG's 8-bit codes as uint8 (height, width, channels), top row first, without decoding sRGB."""
+    source = oiio.ImageInput.open(str(path))
+    if source is None:
+        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
+    try:
+        spec = source.spec()
+        pixels = source.read_image(oiio.UINT8)
+        if pixels is None:
+            raise OSError(f"{path}: read failed: {source.geterror()}")
+    finally:
+        source.close()
+    return np.asarray(pixels, dtype=np.uint8).reshape(spec.height, spec.width, spec.nchannels)

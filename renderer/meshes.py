@@ -1,0 +1,103 @@
+"""Procedural meshes (trimesh) and their upload to GL vertex arrays.
+
+Meshes are plain :class:`trimesh.Trimesh` objects in scene units (mm) with per-vertex normals and texture
+coordinates (``mesh.visual.uv``); :func:`upload` turns one into a :class:`GpuMesh` whose vertex array holds
+positions at attribute location 0, normals at 1 and uv at 2.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+import trimesh
+
+from renderer.context import GL
+
+
+def card(width: float, height: float) -> trimesh.Trimesh:
+    """A flat drawdown card: a ``width`` x ``height`` rectangle (mm) centred at the origin in the z = 0 plane.
+
+    The front faces +z (counter-clockwise seen from +z); uv (0, 0) is the bottom-left (-x, -y) corner.
+    """
+    x, y = width / 2.0, height / 2.0
+    vertices = np.array([[-x, -y, 0.0], [x, -y, 0.0], [x, y, 0.0], [-x, y, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    normals = np.tile([0.0, 0.0, 1.0], (4, 1))
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    return trimesh.Trimesh(
+        vertices, faces, vertex_normals=normals, visual=trimesh.visual.TextureVisuals(uv=uv), process=False
+    )
+
+
+def sphere(radius: float, n_latitude: int = 48, n_longitude: int = 96) -> trimesh.Trimesh:
+    """A UV sphere "swatch" of ``radius`` (mm) centred at the origin, poles on the z axis.
+
+    ``n_latitude`` bands from the +z pole (v = 1) to the -z pole (v = 0) and ``n_longitude`` segments around z
+    (u = azimuth / 2 pi from +x towards +y). The seam and pole vertices are duplicated so that uv is continuous per
+    triangle; normals are the exact radial directions.
+    """
+    if n_latitude < 2 or n_longitude < 3:
+        raise ValueError(f"a sphere needs n_latitude >= 2 and n_longitude >= 3, got {n_latitude}, {n_longitude}")
+    polar = np.linspace(0.0, np.pi, n_latitude + 1)
+    azimuth = np.linspace(0.0, 2.0 * np.pi, n_longitude + 1)
+    p, a = np.meshgrid(polar, azimuth, indexing="ij")
+    normals = np.stack([np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)], axis=-1).reshape(-1, 3)
+    uv = np.stack([a / (2.0 * np.pi), 1.0 - p / np.pi], axis=-1).reshape(-1, 2)
+    row = n_longitude + 1
+    i, j = np.meshgrid(np.arange(n_latitude), np.arange(n_longitude), indexing="ij")
+    v00 = (i * row + j).ravel()
+    v01, v10, v11 = v00 + 1, v00 + row, v00 + row + 1
+    upper = np.stack([v00, v10, v11], axis=-1)[i.ravel() < n_latitude - 1]  # degenerate in the -z pole band
+    lower = np.stack([v00, v11, v01], axis=-1)[i.ravel() > 0]  # degenerate in the +z pole band
+    faces = np.concatenate([upper, lower])
+    return trimesh.Trimesh(
+        radius * normals, faces, vertex_normals=normals, visual=trimesh.visual.TextureVisuals(uv=uv), process=False
+    )
+
+
+class GpuMesh:
+    """A mesh in GL buffers: an interleaved float32 vertex buffer (position, normal, uv) and a uint32 index buffer.
+
+    Use as a context manager (or call :meth:`release`) to free the buffers in the same context.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        """Upload ``mesh``; it needs per-vertex normals and ``mesh.visual.uv``."""
+        uv = getattr(mesh.visual, "uv", None)
+        if uv is None or len(uv) != len(mesh.vertices):
+            raise ValueError("the mesh has no per-vertex texture coordinates (mesh.visual.uv)")
+        vertices = np.hstack([mesh.vertices, mesh.vertex_normals, uv]).astype(np.float32)
+        indices = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
+        self.index_count = indices.size
+        self.vao = GL.glGenVertexArrays(1)
+        self.vbo, self.ebo = GL.glGenBuffers(2)
+        GL.glBindVertexArray(self.vao)
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.vbo)
+        GL.glBufferData(GL.GL_ARRAY_BUFFER, vertices.nbytes, vertices, GL.GL_STATIC_DRAW)
+        GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
+        GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, indices.nbytes, indices, GL.GL_STATIC_DRAW)
+        stride = vertices.shape[1] * vertices.itemsize
+        for location, (offset, size) in enumerate(((0, 3), (3, 3), (6, 2))):
+            GL.glEnableVertexAttribArray(location)
+            GL.glVertexAttribPointer(
+                location, size, GL.GL_FLOAT, GL.GL_FALSE, stride, ctypes.c_void_p(offset * vertices.itemsize)
+            )
+        GL.glBindVertexArray(0)
+
+    def draw(self) -> None:
+        """Draw the triangles with the current program."""
+        GL.glBindVertexArray(self.vao)
+        GL.glDrawElements(GL.GL_TRIANGLES, self.index_count, GL.GL_UNSIGNED_INT, None)
+        GL.glBindVertexArray(0)
+
+    def release(self) -> None:
+        """Delete the vertex array and buffers."""
+        GL.glDeleteVertexArrays(1, [self.vao])
+        GL.glDeleteBuffers(2, [self.vbo, self.ebo])
+
+    def __enter__(self) -> GpuMesh:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.release()

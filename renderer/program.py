@@ -1,0 +1,99 @@
+"""GLSL programs built from the shader files in ``renderer/shaders``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from renderer.context import GL
+
+#: Directory holding the GLSL sources.
+SHADER_DIR = Path(__file__).resolve().parent / "shaders"
+
+_STAGES = {".vert": GL.GL_VERTEX_SHADER, ".frag": GL.GL_FRAGMENT_SHADER}
+
+
+class ShaderError(RuntimeError):
+    """A shader failed to compile or a program failed to link; the message holds the file name and info log."""
+
+
+def _decode(log: bytes | str) -> str:
+    return (log.decode(errors="replace") if isinstance(log, bytes) else log).strip()
+
+
+def _compile(path: Path) -> int:
+    stage = _STAGES.get(path.suffix)
+    if stage is None:
+        raise ShaderError(f"{path}: unknown shader stage (expected one of {', '.join(_STAGES)})")
+    try:
+        source = path.read_text(encoding="utf-8")
+    except OSError as error:
+        raise ShaderError(f"{path}: cannot read shader source: {error}") from error
+    shader = GL.glCreateShader(stage)
+    GL.glShaderSource(shader, source)
+    GL.glCompileShader(shader)
+    if not GL.glGetShaderiv(shader, GL.GL_COMPILE_STATUS):
+        log = _decode(GL.glGetShaderInfoLog(shader))
+        GL.glDeleteShader(shader)
+        raise ShaderError(f"{path}: compile failed:\n{log}")
+    return shader
+
+
+class Program:
+    """A linked GLSL program with named uniform setters.
+
+    Parameters
+    ----------
+    *names
+        Shader file names in :data:`SHADER_DIR` (or absolute paths); the stage comes from the suffix
+        (``.vert`` or ``.frag``).
+    """
+
+    def __init__(self, *names: str) -> None:
+        self.paths = [SHADER_DIR / name for name in names]
+        shaders: list[int] = []
+        try:
+            for path in self.paths:
+                shaders.append(_compile(path))
+            self.handle = GL.glCreateProgram()
+            for shader in shaders:
+                GL.glAttachShader(self.handle, shader)
+            GL.glLinkProgram(self.handle)
+        finally:
+            for shader in shaders:
+                GL.glDeleteShader(shader)
+        if not GL.glGetProgramiv(self.handle, GL.GL_LINK_STATUS):
+            log = _decode(GL.glGetProgramInfoLog(self.handle))
+            GL.glDeleteProgram(self.handle)
+            raise ShaderError(f"{', '.join(str(p) for p in self.paths)}: link failed:\n{log}")
+        self._locations: dict[str, int] = {}
+
+    def use(self) -> None:
+        """Make this the current program."""
+        GL.glUseProgram(self.handle)
+
+    def _location(self, name: str) -> int:
+        if name not in self._locations:
+            location = GL.glGetUniformLocation(self.handle, name)
+            if location < 0:
+                files = ", ".join(p.name for p in self.paths)
+                raise ShaderError(f"{files}: no active uniform named {name!r}")
+            self._locations[name] = location
+        return self._locations[name]
+
+    def set_vec3(self, name: str, value: np.ndarray | tuple[float, float, float]) -> None:
+        """Set a ``vec3`` uniform of the current program."""
+        GL.glUniform3f(self._location(name), *(float(v) for v in np.asarray(value, dtype=float).reshape(3)))
+
+    def set_mat3(self, name: str, matrix: np.ndarray) -> None:
+        """Set a ``mat3`` uniform from a row-major (3, 3) array."""
+        GL.glUniformMatrix3fv(self._location(name), 1, GL.GL_TRUE, np.asarray(matrix, dtype=np.float32))
+
+    def set_mat4(self, name: str, matrix: np.ndarray) -> None:
+        """Set a ``mat4`` uniform from a row-major (4, 4) array."""
+        GL.glUniformMatrix4fv(self._location(name), 1, GL.GL_TRUE, np.asarray(matrix, dtype=np.float32))
+
+    def release(self) -> None:
+        """Delete the program."""
+        GL.glDeleteProgram(self.handle)
