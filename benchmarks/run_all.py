@@ -16,6 +16,7 @@ from pathlib import Path
 import bench_fit
 import bench_fit_grid
 import bench_inversion
+import bench_render_modes
 import numpy as np
 from common import REPO, Table, machine
 
@@ -70,6 +71,10 @@ def main() -> None:
     clock = time.perf_counter()
     grid = bench_fit_grid.run(arguments.grid_samples)
     parts.append(("Wavelength grid of the fit", bench_fit_grid.tables(grid), time.perf_counter() - clock))
+
+    print("render modes ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    parts.append(("Render modes", bench_render_modes.tables(bench_render_modes.run()), time.perf_counter() - clock))
     total = time.perf_counter() - started
 
     summary = _summary(inversion, fit)
