@@ -363,6 +363,41 @@ def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def _labels_arg(text: str) -> list[str]:
+    return [label.strip() for label in text.split(",")]
+
+
+def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
+    from renderer.contact_sheet import FrameError, make_sheet, write_sheet
+
+    frames = args.frames
+    if args.output.suffix.lower() != ".png":
+        raise InputError("expected a .png file name", path=args.output, field="-o")
+    _refuse_overwriting_inputs(args.output, frames)
+    n_cols = args.columns or min(len(frames), 4)
+    n_rows = -(-len(frames) // n_cols)
+    columns = args.column_labels or [path.stem for path in frames[:n_cols]]
+    rows = args.row_labels or [frames[row * n_cols].stem for row in range(n_rows)]
+    for option, labels, wanted in (("--column-labels", columns, n_cols), ("--row-labels", rows, n_rows)):
+        if len(labels) != wanted:
+            raise InputError(
+                f"gives {len(labels)} labels; {len(frames)} frames in {n_cols} columns need {wanted}", field=option
+            )
+    for path in frames:
+        if not path.is_file():
+            raise InputError("does not exist" if not path.exists() else "is not a file", path=path)
+    try:
+        sheet = make_sheet(frames, rows=rows, columns=columns, grid=(n_rows, n_cols), header=args.header or "")
+    except FrameError as err:
+        raise InputError(err.reason, path=err.path) from None
+    write_sheet(sheet, args.output)
+    spec = sheet.spec()
+    console.print(
+        f"wrote the sheet {args.output} ({n_rows} x {n_cols} frames, {spec.width} x {spec.height} px)", highlight=False
+    )
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="kmpipe",
@@ -494,6 +529,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="analyzer transmission of the reference over that of the sample (1: white patch in the same photo)",
     )
     ingest_raw.set_defaults(run=_cmd_ingest_raw)
+
+    sheet = commands.add_parser(
+        "sheet",
+        help="lay rendered frames (EXR, PNG) out in a labelled contact sheet (PNG)",
+        description="Frames fill the grid row-major; EXR frames are linear and sRGB-encoded, PNG frames are used "
+        "as they are. Labels default to file stems: of the first row's frames for the columns, of each row's "
+        "first frame for the rows.",
+    )
+    sheet.add_argument("frames", nargs="+", type=Path, help="frames, EXR (linear) or PNG (sRGB)")
+    sheet.add_argument("-o", "--output", type=Path, required=True, help="SHEET.png")
+    sheet.add_argument(
+        "--columns",
+        type=int,
+        choices=range(1, 1000),
+        metavar="N",
+        help="frames per row (default: all, at most 4)",
+    )
+    sheet.add_argument("--row-labels", type=_labels_arg, metavar="A,B,..", help="one label per row")
+    sheet.add_argument("--column-labels", type=_labels_arg, metavar="X,Y,..", help="one label per column")
+    sheet.add_argument("--header", help="a line across the top, e.g. scene, illuminant and date")
+    sheet.set_defaults(run=_cmd_sheet)
     return parser
 
 

@@ -19,7 +19,7 @@ _CHANNELS = {3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
 
 
 def _as_image(pixels: np.ndarray) -> np.ndarray:
-    image = np.asarray(pixels)
+    image = np.ascontiguousarray(pixels)  # OpenImageIO cannot take broadcast (zero-stride) arrays
     if image.ndim != 3 or image.shape[2] not in _CHANNELS:
         raise ValueError(f"expected an image of shape (height, width, 3 or 4), got {image.shape}")
     return image

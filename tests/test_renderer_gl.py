@@ -184,3 +184,12 @@ def test_spawn_pool_workers_render():
     for albedo, image in zip(albedos, images, strict=True):
         np.testing.assert_allclose(image[32, 32], np.multiply(albedo, RADIANCE), rtol=1e-6)
         np.testing.assert_array_equal(image[0, 0], np.float32(-1.0))
+
+
+def test_exr_accepts_a_broadcast_image(tmp_path):
+    """A frame made with np.broadcast_to (zero strides) is written like a contiguous one."""
+    colour = np.array([0.5, 0.25, 1.0], dtype=np.float32)
+    path = tmp_path / "flat.exr"
+    image_io.write_exr(path, np.broadcast_to(colour, (4, 5, 3)), {})
+    pixels, _ = image_io.read_exr(path)
+    assert pixels.shape == (4, 5, 3) and np.array_equal(pixels, np.broadcast_to(colour, (4, 5, 3)))
