@@ -398,6 +398,37 @@ def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def _cmd_render(args: argparse.Namespace, console: Console) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from kmpipe.render import render_scene
+
+    if args.output.exists() and not args.output.is_dir():
+        raise InputError("exists and is not a folder", path=args.output, field="-o")
+    with Progress(
+        TextColumn("rendering frames"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task("frames", total=None)
+
+        def on_frame(done: int, total: int) -> None:
+            progress.update(task, completed=done, total=total)
+
+        written = render_scene(
+            args.scene,
+            args.output,
+            explain=args.explain,
+            echo=lambda text: console.print(text, highlight=False, markup=False, soft_wrap=True),
+            on_frame=on_frame,
+        )
+    console.print(f"wrote {len(written) // 2} frames (EXR and PNG) to {args.output}", highlight=False)
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="kmpipe",
@@ -550,6 +581,17 @@ def build_parser() -> argparse.ArgumentParser:
     sheet.add_argument("--column-labels", type=_labels_arg, metavar="X,Y,..", help="one label per column")
     sheet.add_argument("--header", help="a line across the top, e.g. scene, illuminant and date")
     sheet.set_defaults(run=_cmd_sheet)
+
+    render = commands.add_parser(
+        "render",
+        help="render a scene (TOML: mesh, films, substrate, light, camera) to EXR and PNG frames",
+        description="Plan the optical tables of the scene's films, render each frame (a turntable when the scene "
+        "has one) with the Kubelka-Munk layer pass and write frame_NNN.exr (linear) and frame_NNN.png (sRGB).",
+    )
+    render.add_argument("scene", type=Path, help="scene file, TOML (docs in kmpipe/scene.py)")
+    render.add_argument("-o", "--output", type=Path, required=True, help="folder for the frames")
+    render.add_argument("--explain", action="store_true", help="print the render plan: modes tried, chosen, tables")
+    render.set_defaults(run=_cmd_render)
     return parser
 
 

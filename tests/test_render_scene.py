@@ -1,0 +1,157 @@
+"""``kmpipe render``: a scene file to EXR and PNG frames, checked against numpy predictions of the optical tables.
+
+The card faces the camera and the light head-on, so its centre pixel is the stack's reflectance (composed in the
+planned mode by kmpipe.optical_tables.composite) times the light's radiance.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kmpipe import cli
+from kmpipe.material import read_material
+from kmpipe.optical_tables import composite
+from kmpipe.render import plan_scene
+from kmpipe.scene import load_scene
+from renderer.image_io import read_exr, read_png, srgb_encode
+
+REPO = Path(__file__).resolve().parent.parent
+RADIANCE = (0.8, 1.0, 0.6)
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def material_file(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("material")
+    out = folder / "F1.json"
+    assert cli.main(["fit", str(REPO / "recipes/samples/F1/manifest.toml"), "-o", str(out)]) == 0
+    return out
+
+
+def write_scene(folder: Path, material: Path, extra: str = "", *, mode_line: str = "accuracy = 0.5") -> Path:
+    text = f"""[scene]
+name = "F1 on a card"
+illuminant = "D65"
+mesh = "card"
+resolution = [{SIZE}, {SIZE}]
+{mode_line}
+
+[substrate]
+reflectance = 0.5
+
+[[layer]]
+material = "{material}"
+thickness = "20 um"
+
+[light]
+direction = [0, 0, 1]
+radiance = [{", ".join(map(str, RADIANCE))}]
+
+[camera]
+azimuth_deg = 0.0
+elevation_deg = 0.0
+distance_mm = 200
+projection = "orthographic"
+{extra}"""
+    path = folder / "scene.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("mode_line", ["accuracy = 0.5", 'mode = "bands:6"', 'mode = "rgb"'])
+def test_card_centre_pixel_matches_the_planned_composite(tmp_path, material_file, mode_line, capsys):
+    scene_path = write_scene(tmp_path, material_file, mode_line=mode_line)
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    scene = load_scene(scene_path)
+    plan, note = plan_scene(scene)
+    assert note is None
+    material = read_material(material_file)
+    table = plan.build_tables({material.name: material})[material.name]
+    expected = composite([table], [0.02], np.full(len(material.wavelengths), 0.5), plan.mode) * np.array(RADIANCE)
+
+    pixels, header = read_exr(tmp_path / "out" / "frame_000.exr")
+    assert pixels.shape == (SIZE, SIZE, 3)
+    centre = pixels[SIZE // 2, SIZE // 2]
+    np.testing.assert_allclose(centre, expected, atol=1e-4)
+    assert header["render_mode"] == plan.mode
+    assert header["scene"] == "F1 on a card"
+    assert header["materials"] == material.name
+    assert header["thicknesses_mm"] == "0.02"
+    assert header["illuminant"] == "D65"
+    assert header["camera_azimuth_deg"] == pytest.approx(0.0)
+    assert header["camera_elevation_deg"] == pytest.approx(0.0)
+
+    png = read_png(tmp_path / "out" / "frame_000.png")
+    assert png.shape == (SIZE, SIZE, 3)
+    encoded = srgb_encode(pixels.astype(np.float64)) * 255.0
+    assert np.max(np.abs(png.astype(np.float64) - encoded)) <= 1.0
+    assert np.max(np.abs(png[SIZE // 2, SIZE // 2] - srgb_encode(expected) * 255.0)) <= 1.0
+
+
+def test_forced_mode_is_used(tmp_path, material_file):
+    scene_path = write_scene(tmp_path, material_file, mode_line='mode = "bands:6"')
+    plan, _ = plan_scene(load_scene(scene_path))
+    assert plan.mode == "bands:6"
+
+
+def test_turntable_writes_frames_with_their_azimuths(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file, "\n[turntable]\nframes = 4\n")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    for i, azimuth in enumerate([0.0, 90.0, 180.0, 270.0]):
+        _, header = read_exr(tmp_path / "out" / f"frame_{i:03d}.exr")
+        assert header["camera_azimuth_deg"] == pytest.approx(azimuth)
+        assert header["frame"] == i
+        assert (tmp_path / "out" / f"frame_{i:03d}.png").is_file()
+    assert not (tmp_path / "out" / "frame_004.exr").exists()
+    # Seen edge-on at 90 degrees the card covers (almost) nothing; at 180 its back faces the camera.
+    front, _ = read_exr(tmp_path / "out" / "frame_000.exr")
+    side, _ = read_exr(tmp_path / "out" / "frame_001.exr")
+    assert front[SIZE // 2, SIZE // 2].max() > 0.05
+    assert side.mean() < front.mean()
+
+
+def test_explain_prints_the_chosen_mode(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file, mode_line='mode = "rgb"')
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out"), "--explain"]) == 0
+    out = capsys.readouterr().out
+    assert "Render plan under D65" in out
+    assert "rgb" in out and "<- chosen" in out
+
+
+def test_exact_is_rendered_as_bands(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file, mode_line='mode = "exact"')
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out"), "--explain"]) == 0
+    out = capsys.readouterr().out
+    assert "rendering in bands:32" in out
+    _, header = read_exr(tmp_path / "out" / "frame_000.exr")
+    assert header["render_mode"] == "bands:32"
+
+
+def test_unknown_key_exits_2_naming_file_line_and_field(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file, "fov = 20\n")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{scene_path}, line 24" in err
+    assert "field 'camera.fov'" in err and "unknown field" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_material_exits_2_naming_file_line_and_field(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, Path("missing.json"))
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{scene_path}, line 12" in err
+    assert "field 'layer[1].material'" in err and "missing.json" in err and "does not exist" in err
+
+
+def test_bad_value_exits_2(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file)
+    scene_path.write_text(scene_path.read_text().replace('"20 um"', '"20"'), encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{scene_path}, line 13" in err and "field 'layer[1].thickness'" in err
