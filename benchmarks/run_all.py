@@ -16,6 +16,7 @@ from pathlib import Path
 import bench_fit
 import bench_fit_grid
 import bench_inversion
+import bench_render
 import bench_render_modes
 import numpy as np
 from common import REPO, Table, machine
@@ -75,6 +76,10 @@ def main() -> None:
     print("render modes ...", file=sys.stderr, flush=True)
     clock = time.perf_counter()
     parts.append(("Render modes", bench_render_modes.tables(bench_render_modes.run()), time.perf_counter() - clock))
+
+    print("rendering ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    parts.append(("Rendering", bench_render.tables(bench_render.run()), time.perf_counter() - clock))
     total = time.perf_counter() - started
 
     summary = _summary(inversion, fit)
@@ -87,7 +92,7 @@ def main() -> None:
     lines = [
         "# Benchmarks",
         "",
-        "Speed and accuracy of kmpipe's closed-form inversions and joint K, S fit, on simulated drawdowns",
+        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes and rendering, on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",
         "do not edit by hand; rerun it. Benchmarks measure, they do not pass or fail; speed never goes into",
