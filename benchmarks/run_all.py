@@ -92,7 +92,8 @@ def main() -> None:
     lines = [
         "# Benchmarks",
         "",
-        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes and rendering, on simulated drawdowns",
+        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes and rendering,",
+        "on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",
         "do not edit by hand; rerun it. Benchmarks measure, they do not pass or fail; speed never goes into",
