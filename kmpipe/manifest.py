@@ -11,9 +11,9 @@ import re
 import tomllib
 from decimal import Decimal
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
 from kmpipe.spectra import uniform_grid
@@ -42,6 +42,15 @@ def parse_thickness_mm(text: str) -> float:
     if not (value > 0.0 and math.isfinite(value)):
         raise ValueError(f"thickness must be > 0, got {text!r}")
     return value
+
+
+def _checked_thickness(value: str) -> str:
+    parse_thickness_mm(value)
+    return value
+
+
+#: A thickness field as people write it ("30 um", "0.03 mm"), checked on reading; every TOML format uses it.
+Thickness = Annotated[str, AfterValidator(_checked_thickness)]
 
 
 def parse_grid(text: str) -> tuple[float, float, float]:
@@ -90,14 +99,7 @@ class Backing(ColumnRef):
 class Masstone(ColumnRef):
     """An opaque layer of the sample; ``thickness`` (optional) lets validation check that it is opaque."""
 
-    thickness: str | None = None
-
-    @field_validator("thickness")
-    @classmethod
-    def _thickness(cls, value: str | None) -> str | None:
-        if value is not None:
-            parse_thickness_mm(value)
-        return value
+    thickness: Thickness | None = None
 
     @property
     def thickness_mm(self) -> float | None:
@@ -106,13 +108,7 @@ class Masstone(ColumnRef):
 
 class Film(ColumnRef):
     over: str = Field(min_length=1)
-    thickness: str
-
-    @field_validator("thickness")
-    @classmethod
-    def _thickness(cls, value: str) -> str:
-        parse_thickness_mm(value)
-        return value
+    thickness: Thickness
 
     @property
     def thickness_mm(self) -> float:

@@ -20,7 +20,7 @@ from typing import Literal
 
 import numpy as np
 import serial
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from rich.console import Console
 
 from instruments.cs2000.driver import CS2000, InstrumentTimeout, Reading
@@ -29,6 +29,7 @@ from kmpipe import __version__
 from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
 from kmpipe.manifest import (
+    Thickness,
     field_line,
     first_validation_error,
     format_field,
@@ -73,14 +74,7 @@ class PlanBacking(_Strict):
 
 
 class _WithThickness(_Strict):
-    thickness: str | None = None  # e.g. "30 um"; checked like the manifest's
-
-    @field_validator("thickness")
-    @classmethod
-    def _thickness(cls, value):
-        if value is not None:
-            parse_thickness_mm(value)
-        return value
+    thickness: Thickness | None = None  # e.g. "30 um"
 
 
 class PlanMasstone(_WithThickness):

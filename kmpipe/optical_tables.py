@@ -78,8 +78,12 @@ def working_space(wavelengths, illuminant: str = "D65", observer: str = "2") -> 
     white = W_XYZ.sum(axis=0)
 
     def to_rgb(XYZ):
-        return colour.XYZ_to_RGB(XYZ, colour.RGB_COLOURSPACES["sRGB"], illuminant=colour.XYZ_to_xy(white),
-                                 chromatic_adaptation_transform="CAT02")
+        return colour.XYZ_to_RGB(
+            XYZ,
+            colour.RGB_COLOURSPACES["sRGB"],
+            illuminant=colour.XYZ_to_xy(white),
+            chromatic_adaptation_transform="CAT02",
+        )
 
     A = to_rgb(np.eye(3))
     A = A / (white @ A)  # per-channel scale: the perfect white -> (1, 1, 1) exactly
@@ -184,7 +188,11 @@ class OpticalTable:
 
     @classmethod
     def build(
-        cls, material: FilmCoefficients, thicknesses_mm, mode: str, space: WorkingSpace,
+        cls,
+        material: FilmCoefficients,
+        thicknesses_mm,
+        mode: str,
+        space: WorkingSpace,
         bands: BandPartition | None = None,
     ) -> OpticalTable:
         """Tabulate ``material`` at the distinct values of ``thicknesses_mm`` (mm) in ``mode``."""
@@ -289,16 +297,22 @@ def probe_thicknesses(thickness_range: tuple[float, float]) -> tuple[float, ...]
 
 def exact_rgb(materials: Sequence[FilmCoefficients], thicknesses, substrate, space: WorkingSpace) -> np.ndarray:
     """Reference: KM films computed per wavelength from K and S (no table), composed spectrally, then @ W."""
-    films = [film_reflectance_transmittance(m.K, m.S, np.asarray(X, dtype=np.float64)[..., None])
-             for m, X in zip(materials, thicknesses, strict=True)]
+    films = [
+        film_reflectance_transmittance(m.K, m.S, np.asarray(X, dtype=np.float64)[..., None])
+        for m, X in zip(materials, thicknesses, strict=True)
+    ]
     R0 = np.stack(np.broadcast_arrays(*(r for r, _ in films)))
     T = np.stack(np.broadcast_arrays(*(t for _, t in films)))
     return stack_over_substrate(R0, T, substrate) @ space.matrix
 
 
 def mode_error(
-    stacks: Sequence[Stack], mode: str, materials: Mapping[str, FilmCoefficients],
-    thickness_ranges: Mapping[str, tuple[float, float]], illuminant: str = "D65", observer: str = "2",
+    stacks: Sequence[Stack],
+    mode: str,
+    materials: Mapping[str, FilmCoefficients],
+    thickness_ranges: Mapping[str, tuple[float, float]],
+    illuminant: str = "D65",
+    observer: str = "2",
 ) -> np.ndarray:
     """CIE Delta E 2000 of ``mode`` against the exact spectral result, for each stack and probe thickness.
 

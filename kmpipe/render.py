@@ -96,8 +96,8 @@ def camera_for(scene: Scene, azimuth_deg: float):
     near = max(info.distance_mm - 2.0 * radius, 1e-3 * info.distance_mm)
     far = info.distance_mm + 2.0 * radius
     if info.projection == "orthographic":
-        return OrthographicCamera(1.1 * radius, eye, tuple(centre), (0.0, 1.0, 0.0), near, far)
-    return PerspectiveCamera(info.fov_deg, eye, tuple(centre), (0.0, 1.0, 0.0), near, far)
+        return OrthographicCamera(1.1 * radius, eye=eye, target=tuple(centre), near=near, far=far)
+    return PerspectiveCamera(info.fov_deg, eye=eye, target=tuple(centre), near=near, far=far)
 
 
 def render_scene(

@@ -84,13 +84,17 @@ class RenderPlan:
         space = working_space(materials[self.materials[0]].wavelengths, self.illuminant, self.observer)
         kind, n_bands = parse_mode(self.mode)
         bands = band_partition(space.wavelengths, n_bands, space=space) if kind == "bands" else None
-        return {t.material: OpticalTable.build(materials[t.material], t.thicknesses_mm, self.mode, space, bands)
-                for t in self.tables}
+        return {
+            t.material: OpticalTable.build(materials[t.material], t.thicknesses_mm, self.mode, space, bands)
+            for t in self.tables
+        }
 
     def explain(self) -> str:
         """The plan as text: materials, stacks, ranges, candidates with their errors, table sizes, what was dropped."""
-        lines = [f"Render plan under {self.illuminant} (observer {self.observer} deg), "
-                 f"target Delta E 2000 <= {self.target_dE:g}"]
+        lines = [
+            f"Render plan under {self.illuminant} (observer {self.observer} deg), "
+            f"target Delta E 2000 <= {self.target_dE:g}"
+        ]
         lines.append("Materials: " + ", ".join(self.materials))
         lines.append("Stacks (top first):")
         lines += [f"  {s.name}: {' / '.join(s.layers)} / substrate" for s in self.stacks]
@@ -108,8 +112,10 @@ class RenderPlan:
         lines.append("Tables:")
         for t in self.tables:
             axis = f"{t.n_samples} thickness samples" if t.n_samples > 1 else "no thickness axis"
-            lines.append(f"  {t.material}: {axis} x {t.n_channels} channels x (R0, T), "
-                         f"interpolation Delta E 2000 <= {t.interpolation_dE:.3f}")
+            lines.append(
+                f"  {t.material}: {axis} x {t.n_channels} channels x (R0, T), "
+                f"interpolation Delta E 2000 <= {t.interpolation_dE:.3f}"
+            )
         lines.append("Dropped:" if self.dropped else "Dropped: nothing")
         lines += [f"  {d}" for d in self.dropped]
         return "\n".join(lines)
@@ -167,8 +173,9 @@ def plan_render(
     dropped = []
     kept: list[Stack] = []
     for stack in stacks:
-        twin = next((k for k in kept if k.layers == stack.layers and np.array_equal(k.substrate, stack.substrate)),
-                    None)
+        twin = next(
+            (k for k in kept if k.layers == stack.layers and np.array_equal(k.substrate, stack.substrate)), None
+        )
         if not stack.layers:
             dropped.append(f"stack {stack.name}: no layers (bare substrate) -> no tables")
         elif twin is not None:
@@ -182,11 +189,15 @@ def plan_render(
         if name not in scene_materials or name not in thickness_ranges:
             raise ValueError(f"material {name!r} is used by a stack but has no coefficients or no thickness range")
     dropped += [f"material {name}: not in any stack -> no table" for name in scene_materials if name not in used]
-    dropped += [f"thickness range of {name}: material not used -> ignored" for name in thickness_ranges
-                if name not in used]
+    dropped += [
+        f"thickness range of {name}: material not used -> ignored" for name in thickness_ranges if name not in used
+    ]
     ranges = {name: (float(thickness_ranges[name][0]), float(thickness_ranges[name][1])) for name in used}
-    dropped += [f"material {name}: single thickness {lo:g} mm -> no thickness axis"
-                for name, (lo, hi) in ranges.items() if lo == hi]
+    dropped += [
+        f"material {name}: single thickness {lo:g} mm -> no thickness axis"
+        for name, (lo, hi) in ranges.items()
+        if lo == hi
+    ]
 
     space = working_space(scene_materials[used[0]].wavelengths, illuminant, observer)
     candidates = []
@@ -212,5 +223,16 @@ def plan_render(
                 n = 2 * n - 1
                 error = _interpolation_error(scene_materials[name], lo, hi, n, substrates, chosen, space, bands)
         tables.append(TableSize(name, lo, hi, n, n_channels, error))
-    return RenderPlan(illuminant, observer, target, chosen, mode is not None, used, tuple(kept), ranges,
-                      tuple(candidates), tuple(tables), tuple(dropped))
+    return RenderPlan(
+        illuminant,
+        observer,
+        target,
+        chosen,
+        mode is not None,
+        used,
+        tuple(kept),
+        ranges,
+        tuple(candidates),
+        tuple(tables),
+        tuple(dropped),
+    )

@@ -24,7 +24,7 @@ import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from kmpipe.errors import InputError
-from kmpipe.manifest import first_validation_error, format_field, parse_thickness_mm, read_toml, toml_line
+from kmpipe.manifest import Thickness, first_validation_error, format_field, parse_thickness_mm, read_toml, toml_line
 from kmpipe.material import Material, read_material
 from kmpipe.optical_tables import parse_mode
 
@@ -83,13 +83,7 @@ class SubstrateInfo(_Strict):
 
 class LayerInfo(_Strict):
     material: str = Field(min_length=1)
-    thickness: str
-
-    @field_validator("thickness")
-    @classmethod
-    def _thickness(cls, value: str) -> str:
-        parse_thickness_mm(value)
-        return value
+    thickness: Thickness
 
 
 class LightInfo(_Strict):

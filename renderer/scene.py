@@ -36,14 +36,10 @@ def look_at(eye: Vec3, target: Vec3, up: Vec3) -> np.ndarray:
     return view
 
 
-@dataclass(frozen=True)
-class OrthographicCamera:
-    """A parallel projection: the image spans ``2 * half_height`` mm vertically, ``aspect`` times that horizontally.
+@dataclass(frozen=True, kw_only=True)
+class _Pose:
+    """Where a camera is (mm) and where it looks; ``near`` and ``far`` are distances (mm) along the view direction."""
 
-    ``near`` and ``far`` are distances (mm) from ``eye`` along the view direction.
-    """
-
-    half_height: float
     eye: Vec3 = (0.0, 0.0, 100.0)
     target: Vec3 = (0.0, 0.0, 0.0)
     up: Vec3 = (0.0, 1.0, 0.0)
@@ -54,6 +50,15 @@ class OrthographicCamera:
         """World -> camera matrix (4, 4)."""
         return look_at(self.eye, self.target, self.up)
 
+
+@dataclass(frozen=True)
+class OrthographicCamera(_Pose):
+    """A parallel projection: the image spans ``2 * half_height`` mm vertically, ``aspect`` times that horizontally.
+
+    ``near`` and ``far`` are distances (mm) from ``eye`` along the view direction.
+    """
+
+    half_height: float
     def projection_matrix(self, aspect: float) -> np.ndarray:
         """Camera -> clip matrix (4, 4) for an image of ``aspect`` = width / height (pixels)."""
         top, right = self.half_height, self.half_height * aspect
@@ -69,20 +74,10 @@ class OrthographicCamera:
 
 
 @dataclass(frozen=True)
-class PerspectiveCamera:
+class PerspectiveCamera(_Pose):
     """A pinhole camera with a vertical field of view ``fov_y_deg`` (degrees); ``near``/``far`` in mm (> 0)."""
 
     fov_y_deg: float
-    eye: Vec3 = (0.0, 0.0, 100.0)
-    target: Vec3 = (0.0, 0.0, 0.0)
-    up: Vec3 = (0.0, 1.0, 0.0)
-    near: float = 1.0
-    far: float = 1000.0
-
-    def view_matrix(self) -> np.ndarray:
-        """World -> camera matrix (4, 4)."""
-        return look_at(self.eye, self.target, self.up)
-
     def projection_matrix(self, aspect: float) -> np.ndarray:
         """Camera -> clip matrix (4, 4) for an image of ``aspect`` = width / height (pixels)."""
         focal = 1.0 / np.tan(np.radians(self.fov_y_deg) / 2.0)
