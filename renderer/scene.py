@@ -106,7 +106,33 @@ class DirectionalLight:
 
     direction: Vec3
     radiance: Vec3
+    cast_shadows: bool = True
 
     def to_light(self) -> np.ndarray:
         """Unit vector (3,) from a surface towards the light."""
         return -_unit(self.direction, "the light direction")
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """An isotropic light at ``position`` (mm), falling off with the inverse square of the distance.
+
+    ``radiance`` is linear RGB at ``reference_distance_mm``: a white Lambert surface facing the light from that
+    distance renders as ``radiance``; at distance d it renders as ``radiance * (reference_distance_mm / d)^2 *
+    cos(theta)``.
+    """
+
+    position: Vec3
+    radiance: Vec3
+    reference_distance_mm: float
+    cast_shadows: bool = True
+
+    def __post_init__(self) -> None:
+        if not (np.all(np.isfinite(self.position)) and self.reference_distance_mm > 0.0):
+            raise ValueError(
+                f"a point light needs a finite position and a reference distance > 0 mm, got {self.position} "
+                f"and {self.reference_distance_mm}"
+            )
+
+
+Light = DirectionalLight | PointLight
