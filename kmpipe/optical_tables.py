@@ -297,13 +297,26 @@ def probe_thicknesses(thickness_range: tuple[float, float]) -> tuple[float, ...]
 
 def exact_rgb(materials: Sequence[FilmCoefficients], thicknesses, substrate, space: WorkingSpace) -> np.ndarray:
     """Reference: KM films computed per wavelength from K and S (no table), composed spectrally, then @ W."""
+    return exact_stack(materials, thicknesses, substrate, space)[0]
+
+
+def exact_stack(
+    materials: Sequence[FilmCoefficients], thicknesses, substrate, space: WorkingSpace
+) -> tuple[np.ndarray, np.ndarray]:
+    """A stack (top first) composed per wavelength, in linear working-space RGB: reflectance and lobe attenuation.
+
+    Returns ``(R @ W, A @ W)``: the reflectance of the films over the substrate, shape (..., 3), and for each film
+    i the spectral attenuation of its specular lobe by the films above it, ``A_i = prod_{j < i} T_j^2`` (1 for the
+    top film), as the RGB of white light so attenuated, shape (n_films, ..., 3). Thicknesses (mm) broadcast together.
+    """
     films = [
         film_reflectance_transmittance(m.K, m.S, np.asarray(X, dtype=np.float64)[..., None])
         for m, X in zip(materials, thicknesses, strict=True)
     ]
     R0 = np.stack(np.broadcast_arrays(*(r for r, _ in films)))
     T = np.stack(np.broadcast_arrays(*(t for _, t in films)))
-    return stack_over_substrate(R0, T, substrate) @ space.matrix
+    above = np.concatenate([np.ones_like(T[:1]), np.cumprod(T[:-1] ** 2, axis=0)])
+    return stack_over_substrate(R0, T, substrate) @ space.matrix, above @ space.matrix
 
 
 def mode_error(

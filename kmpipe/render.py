@@ -1,103 +1,253 @@
 """``kmpipe render``: a scene file (:mod:`kmpipe.scene`) to linear EXR and sRGB PNG frames.
 
 The materials' planned optical tables (:func:`kmpipe.render_plan.plan_render` on the scene's one stack, each
-material at its single thickness) feed the renderer's Kubelka-Munk layer pass (:mod:`renderer.layers`). The layer
-pass composes at most :data:`renderer.layers.MAX_CHANNELS` channels: a planned mode with more (``exact``, or
-``bands:N`` with N larger) is replaced by ``bands:M``, M = min(number of wavelengths, MAX_CHANNELS); with M equal to
-the number of wavelengths every band is one wavelength, which is the exact spectral composition. When M is smaller
-and the accuracy target is not met, the scene is refused.
+material over the thickness range the scene gives it) feed the renderer's Kubelka-Munk layer pass
+(:mod:`renderer.layers`). In the ``rgb`` and ``bands:N`` modes the shader composes the films per channel from the
+tables (at most :data:`renderer.layers.MAX_CHANNELS` bands, so the planner tries no more); in ``exact`` mode the stack
+is composed here, per wavelength, once for each distinct combination of thicknesses in the scene (one for uniform
+films; one per distinct texel of the thickness maps), and the shader reads the result.
+
+The scene also decides what else a frame needs (:class:`ScenePlan`): a shadow map for each light that casts shadows,
+unless nothing in the scene can shadow anything (a flat or convex product without a ground); the size of the maps;
+a ground under the product.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from kmpipe.errors import InputError
-from kmpipe.optical_tables import OpticalTable, Stack, parse_mode
+from kmpipe.optical_tables import Stack, exact_stack, parse_mode, working_space
 from kmpipe.render_plan import RenderPlan, plan_render
 from kmpipe.scene import Scene, load_scene
 
+#: Texels of a shadow map per pixel of the longer image side, and the bounds of the map's size.
+SHADOW_TEXELS_PER_PIXEL = 2
+SHADOW_MAP_SIZES = (512, 4096)
+#: Ground half-size in radii of the product's bounding sphere.
+GROUND_EXTENT = 4.0
 
-def _channels(mode: str, n_wavelengths: int) -> int:
-    kind, n_bands = parse_mode(mode)
-    return {"rgb": 3, "bands": n_bands, "exact": n_wavelengths}[kind]
+
+@dataclass(frozen=True)
+class ScenePlan:
+    """The render plan of the optical tables plus the scene-level choices: shadows, their maps, the ground."""
+
+    tables: RenderPlan
+    shadow_map_size: int | None
+    shadow_lights: tuple[bool, ...]
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def mode(self) -> str:
+        return self.tables.mode
+
+    def explain(self) -> str:
+        lines = [self.tables.explain(), "Scene:"]
+        lines += [f"  {note}" for note in self.notes]
+        return "\n".join(lines)
 
 
-def plan_scene(scene: Scene) -> tuple[RenderPlan, str | None]:
-    """The render plan of the scene, in a mode the layer pass can render, and a note when the mode was replaced."""
+def can_shadow_itself(mesh: trimesh.Trimesh) -> bool:
+    """Whether some part of the mesh can hide another from a light: False for a flat or a closed convex mesh."""
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    centred = vertices - vertices.mean(axis=0)
+    extent = float(np.ptp(vertices, axis=0).max())
+    flat = np.linalg.svd(centred, compute_uv=False)[-1] <= 1e-9 * max(extent, 1e-300) * math.sqrt(len(vertices))
+    if flat:
+        return False
+    welded = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=True)  # seams duplicated for uv: merged
+    return not (welded.is_watertight and welded.is_convex)
+
+
+def plan_scene(scene: Scene) -> ScenePlan:
+    """The scene's render plan: mode and tables, then shadows and the other per-frame work."""
     from renderer.layers import MAX_CHANNELS
 
     materials = {m.name: m for m in scene.materials}
     ranges: dict[str, tuple[float, float]] = {}
-    for material, thickness in zip(scene.materials, scene.thicknesses_mm, strict=True):
-        lo, hi = ranges.get(material.name, (thickness, thickness))
-        ranges[material.name] = (min(lo, thickness), max(hi, thickness))
+    for index, material in enumerate(scene.materials):
+        lo, hi = scene.thickness_range_mm(index)
+        old = ranges.get(material.name, (lo, hi))
+        ranges[material.name] = (min(old[0], lo), max(old[1], hi))
     stacks = [Stack(scene.name, tuple(m.name for m in scene.materials), scene.substrate_reflectance())]
     settings = scene.info.scene
-    plan = plan_render(materials, stacks, ranges, settings.illuminant, settings.accuracy, settings.mode)
-    n_wavelengths = len(scene.wavelengths)
-    if _channels(plan.mode, n_wavelengths) <= MAX_CHANNELS:
-        return plan, None
-    replacement = f"bands:{min(n_wavelengths, MAX_CHANNELS)}"
-    forced = plan_render(materials, stacks, ranges, settings.illuminant, plan.target_dE, replacement)
-    error = forced.candidates[-1].max_dE
-    if error > forced.target_dE:
-        raise InputError(
-            f"the planned mode {plan.mode} has more channels than the layer pass renders ({MAX_CHANNELS}); "
-            f"{replacement} misses the accuracy target (Delta E 2000 {error:.3f} > {forced.target_dE:g}): "
-            "raise scene.accuracy or set scene.mode",
-            path=scene.path,
-            field="scene.accuracy",
-        )
-    note = (
-        f"planned mode {plan.mode} has more than {MAX_CHANNELS} channels (the layer pass's limit): "
-        f"rendering in {replacement} (max Delta E 2000 {error:.3f} against exact)"
+    tables = plan_render(
+        materials, stacks, ranges, settings.illuminant, settings.accuracy, settings.mode, max_bands=MAX_CHANNELS
     )
-    return forced, note
+    kind, n_bands = parse_mode(tables.mode)
+    if kind == "bands" and n_bands > MAX_CHANNELS:
+        raise InputError(
+            f"mode {tables.mode} has more bands than the layer pass composes ({MAX_CHANNELS}): use bands:N with "
+            f"N <= {MAX_CHANNELS}, or exact",
+            path=scene.path,
+            field="scene.mode",
+        )
+    notes = []
+    if kind == "exact":
+        notes.append(
+            f"exact: the stack is composed per wavelength ({len(scene.wavelengths)} of them) at each distinct "
+            "combination of thicknesses in the scene; no tables reach the shader"
+        )
+    lights = scene.info.light
+    wanted = [light.shadows for light in lights]
+    self_shadowing = can_shadow_itself(scene.mesh)
+    size = None
+    if not any(wanted):
+        notes.append("shadow maps: no light casts shadows -> none made")
+    elif not (self_shadowing or scene.info.ground is not None):
+        notes.append(
+            f"shadow maps: the {scene.info.scene.mesh} mesh is flat or convex and there is no ground, so nothing "
+            "can shadow anything -> none made"
+        )
+        wanted = [False] * len(lights)
+    else:
+        longer = max(settings.resolution)
+        size = settings.shadow_map or int(
+            np.clip(2 ** math.ceil(math.log2(SHADOW_TEXELS_PER_PIXEL * longer)), *SHADOW_MAP_SIZES)
+        )
+        casters = "the product" + (" (it can shadow itself)" if self_shadowing else "")
+        notes.append(
+            f"shadow maps: {sum(wanted)} of {len(lights)} lights cast shadows of {casters}"
+            f"{' onto the ground' if scene.info.ground is not None else ''}; {size} x {size} texels, 3 x 3 PCF"
+        )
+    if scene.info.ground is None:
+        notes.append("ground: none")
+    lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
+    notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
+    return ScenePlan(tables, size, tuple(wanted), tuple(notes))
 
 
-def layer_inputs(plan: RenderPlan, scene: Scene):
-    """The layer pass's inputs: LayerTables (top first), substrate per channel and to_rgb (None in rgb mode)."""
-    from renderer.layers import LayerTable
+def _stack_input(plan: ScenePlan, scene: Scene):
+    """The layer pass's stack: a ChannelStack from the planned tables, or a Precomposed stack in exact mode."""
+    from renderer.layers import ChannelStack, LayerTable, Precomposed
 
-    tables: dict[str, OpticalTable] = plan.build_tables({m.name: m for m in scene.materials})
-    first = tables[scene.materials[0].name]
     kind, _ = parse_mode(plan.mode)
     substrate = scene.substrate_reflectance()
+    if kind == "exact":
+        return Precomposed(*_precompose(scene, substrate))
+    tables = plan.tables.build_tables({m.name: m for m in scene.materials})
+    first = tables[scene.materials[0].name]
     if kind == "rgb":
-        substrate_channels, to_rgb = np.clip(substrate @ first.space.matrix, 0.0, 1.0), None
-    else:  # bands (exact never reaches here: plan_scene replaces it)
+        substrate_channels, to_rgb = substrate @ first.space.matrix, None
+    else:
         substrate_channels, to_rgb = substrate @ first.bands.averaging, first.bands.to_rgb
     layer_tables = []
     for material in scene.materials:
         table = tables[material.name]
         x = table.single_thickness_mm if table.thickness_mm is None else table.thickness_mm
         layer_tables.append(LayerTable(x, np.clip(table.R0, 0.0, 1.0), np.clip(table.T, 0.0, 1.0)))
-    return layer_tables, np.clip(substrate_channels, 0.0, 1.0), to_rgb
+    return ChannelStack(layer_tables, list(scene.thicknesses_mm), np.clip(substrate_channels, 0.0, 1.0), to_rgb)
 
 
-def camera_for(scene: Scene, azimuth_deg: float):
-    """The scene's camera at ``azimuth_deg``, looking at the centre of the (placed) mesh."""
-    from renderer.scene import OrthographicCamera, PerspectiveCamera
+def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact mode: reflectance (3,) and attenuation (n, 3), or both over the grid of the thickness maps.
 
+    Maps of other sizes than the first are resampled to its grid (bilinear). Only distinct thickness combinations
+    are composed, in chunks, so a large map of few levels costs little.
+    """
+    import cv2
+
+    space = working_space(scene.wavelengths, scene.info.scene.illuminant)
+    maps = [np.asarray(x, dtype=float) for x in scene.thicknesses_mm if np.ndim(x) == 2]
+    if not maps:
+        reflectance, attenuation = exact_stack(scene.materials, list(scene.thicknesses_mm), substrate, space)
+        return reflectance, attenuation
+    rows, columns = maps[0].shape
+    grids = []
+    for x in scene.thicknesses_mm:
+        value = np.asarray(x, dtype=float)
+        if value.ndim == 0:
+            grids.append(np.full((rows, columns), float(value)))
+        elif value.shape != (rows, columns):
+            grids.append(cv2.resize(value, (columns, rows), interpolation=cv2.INTER_LINEAR))
+        else:
+            grids.append(value)
+    combinations, inverse = np.unique(np.stack([g.ravel() for g in grids], axis=1), axis=0, return_inverse=True)
+    reflectance = np.empty((len(combinations), 3))
+    attenuation = np.empty((len(grids), len(combinations), 3))
+    chunk = 16384
+    for start in range(0, len(combinations), chunk):
+        part = combinations[start : start + chunk]
+        r, a = exact_stack(scene.materials, list(part.T), substrate, space)
+        reflectance[start : start + chunk], attenuation[:, start : start + chunk] = r, a
+    inverse = inverse.ravel()
+    return reflectance[inverse].reshape(rows, columns, 3), attenuation[:, inverse].reshape(len(grids), rows, columns, 3)
+
+
+def _bounds(scene: Scene) -> tuple[np.ndarray, float, float]:
+    """Centre (mm) and radius (mm) of the placed mesh, and its lowest world y (mm)."""
     vertices = np.asarray(scene.mesh.vertices) @ scene.model[:3, :3].T + scene.model[:3, 3]
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-    radius = float(np.max(np.linalg.norm(vertices - centre, axis=1)))
+    return centre, float(np.max(np.linalg.norm(vertices - centre, axis=1))), float(vertices[:, 1].min())
+
+
+def camera_for(scene: Scene):
+    """The scene's camera, looking at the centre of the (placed) mesh."""
+    from renderer.scene import OrthographicCamera, PerspectiveCamera
+
+    centre, radius, _ = _bounds(scene)
     info = scene.info.camera
-    azimuth, elevation = math.radians(azimuth_deg), math.radians(info.elevation_deg)
+    azimuth, elevation = math.radians(info.azimuth_deg), math.radians(info.elevation_deg)
     direction = np.array(
         [math.cos(elevation) * math.sin(azimuth), math.sin(elevation), math.cos(elevation) * math.cos(azimuth)]
     )
     eye = tuple(centre + info.distance_mm * direction)
-    near = max(info.distance_mm - 2.0 * radius, 1e-3 * info.distance_mm)
-    far = info.distance_mm + 2.0 * radius
+    reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
+    near = max(info.distance_mm - 2.0 * reach, 1e-3 * info.distance_mm)
+    far = info.distance_mm + 2.0 * reach
     if info.projection == "orthographic":
         return OrthographicCamera(1.1 * radius, eye=eye, target=tuple(centre), near=near, far=far)
     return PerspectiveCamera(info.fov_deg, eye=eye, target=tuple(centre), near=near, far=far)
+
+
+def turntable_model(scene: Scene, angle_deg: float) -> np.ndarray:
+    """The product's object -> world matrix turned by ``angle_deg`` about the vertical axis through its centre.
+
+    The turn is clockwise seen from above, so the camera's azimuth relative to the product grows with the angle.
+    """
+    centre, _, _ = _bounds(scene)
+    turn = np.eye(4)
+    c, s = math.cos(math.radians(-angle_deg)), math.sin(math.radians(-angle_deg))
+    turn[0, 0], turn[0, 2], turn[2, 0], turn[2, 2] = c, s, -s, c
+    shift, back = np.eye(4), np.eye(4)
+    shift[:3, 3], back[:3, 3] = -centre, centre
+    return back @ turn @ shift @ scene.model
+
+
+def _lights(scene: Scene, plan: ScenePlan):
+    from renderer.scene import DirectionalLight, PointLight
+
+    centre, _, _ = _bounds(scene)
+    lights = []
+    for info, shadows in zip(scene.info.light, plan.shadow_lights, strict=True):
+        if info.kind == "point":
+            reference = info.reference_distance_mm or float(np.linalg.norm(np.subtract(info.position, centre)))
+            lights.append(PointLight(info.position, info.radiance, reference, cast_shadows=shadows))
+        else:
+            towards = info.direction if info.direction is not None else (0.0, 0.0, 1.0)
+            lights.append(DirectionalLight(tuple(-np.asarray(towards, float)), info.radiance, cast_shadows=shadows))
+    return lights
+
+
+def _ground(scene: Scene):
+    """A square floor under the product (a Prop), or None."""
+    from renderer.layers import Prop
+    from renderer.meshes import card
+
+    if scene.info.ground is None:
+        return None
+    centre, radius, bottom = _bounds(scene)
+    side = 2.0 * GROUND_EXTENT * radius
+    model = np.eye(4)
+    model[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y
+    model[:3, 3] = (centre[0], bottom, centre[2])
+    return Prop(card(side, side), (scene.info.ground.reflectance,) * 3, model)
 
 
 def render_scene(
@@ -110,52 +260,66 @@ def render_scene(
 ) -> list[Path]:
     """Render every frame of a scene file into ``out_dir`` as ``frame_NNN.exr`` (linear, float) and ``.png`` (sRGB).
 
-    ``explain`` passes the render plan's text to ``echo``; ``on_frame(i, n)`` is called after frame i of n.
+    ``explain`` passes the plan's text to ``echo``; ``on_frame(i, n)`` is called after frame i of n. The PNG is
+    tone mapped as the scene's ``[output]`` says; the EXR keeps the linear render.
     Returns the files written, EXR and PNG of each frame in order.
     """
     from renderer.image_io import write_exr, write_png
-    from renderer.layers import render_layers
-    from renderer.scene import DirectionalLight
+    from renderer.layers import Specular, render_layers
+    from renderer.tone_map import tone_map
 
     scene = load_scene(scene_path)
-    plan, note = plan_scene(scene)
+    plan = plan_scene(scene)
     if explain:
         echo(plan.explain())
-        if note:
-            echo(note)
-    layer_tables, substrate, to_rgb = layer_inputs(plan, scene)
+    stack = _stack_input(plan, scene)
     info = scene.info
-    light = DirectionalLight(tuple(-np.asarray(info.light.direction, dtype=float)), info.light.radiance)
+    specular = [None if layer.specular is None else Specular(**layer.specular.model_dump()) for layer in info.layer]
+    lights, camera = _lights(scene, plan), camera_for(scene)
+    ground = _ground(scene)
     width, height = info.scene.resolution
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     header = {
         "scene": scene.name,
+        "product": scene.product,
+        "shade": scene.shade,
         "materials": ", ".join(m.name for m in scene.materials),
-        "thicknesses_mm": ", ".join(f"{x:g}" for x in scene.thicknesses_mm),
+        "material_sha256": ", ".join(scene.material_hashes),
+        "thicknesses_mm": ", ".join(
+            f"{x:g}" if np.ndim(x) == 0 else "{:g}..{:g} (map)".format(*scene.thickness_range_mm(i))
+            for i, x in enumerate(scene.thicknesses_mm)
+        ),
         "render_mode": plan.mode,
         "illuminant": info.scene.illuminant,
         "camera_elevation_deg": float(info.camera.elevation_deg),
+        "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
     }
     written = []
-    azimuths = scene.frame_azimuths_deg()
-    for i, azimuth in enumerate(azimuths):
+    angles = scene.turntable_angles_deg()
+    for i, angle in enumerate(angles):
         image = render_layers(
             scene.mesh,
-            camera_for(scene, azimuth),
-            light,
-            layer_tables,
-            list(scene.thicknesses_mm),
-            substrate,
+            camera,
+            lights,
+            stack,
             width,
             height,
-            to_rgb=to_rgb,
-            model=scene.model,
+            specular=specular,
+            model=turntable_model(scene, angle),
+            props=[ground] if ground is not None else [],
+            shadow_map_size=plan.shadow_map_size or SHADOW_MAP_SIZES[0],
         )
         exr, png = out_dir / f"frame_{i:03d}.exr", out_dir / f"frame_{i:03d}.png"
-        write_exr(exr, image, {**header, "camera_azimuth_deg": float(azimuth), "frame": i}, half=False)
-        write_png(png, image)
+        frame_header = {
+            **header,
+            "camera_azimuth_deg": float((info.camera.azimuth_deg + angle) % 360.0),
+            "turntable_deg": float(angle),
+            "frame": i,
+        }
+        write_exr(exr, image, frame_header, half=False)
+        write_png(png, tone_map(image, info.output.tone_map, info.output.exposure_ev))
         written += [exr, png]
         if on_frame is not None:
-            on_frame(i + 1, len(azimuths))
+            on_frame(i + 1, len(angles))
     return written

@@ -121,9 +121,10 @@ class RenderPlan:
         return "\n".join(lines)
 
 
-def candidate_modes(n_wavelengths: int) -> list[str]:
-    """rgb, bands:3, bands:6, ... (N < n_wavelengths), exact: cheapest first."""
-    return ["rgb", *(f"bands:{n}" for n in range(3, n_wavelengths, 3)), "exact"]
+def candidate_modes(n_wavelengths: int, max_bands: int | None = None) -> list[str]:
+    """rgb, bands:3, bands:6, ... (N < n_wavelengths and N <= max_bands), exact: cheapest first."""
+    top = n_wavelengths - 1 if max_bands is None else min(n_wavelengths - 1, max_bands)
+    return ["rgb", *(f"bands:{n}" for n in range(3, top + 1, 3)), "exact"]
 
 
 def _interpolation_error(material: FilmCoefficients, lo: float, hi: float, n: int, substrates, mode, space, bands):
@@ -152,6 +153,7 @@ def plan_render(
     accuracy_target_dE: float | None = None,
     mode: str | None = None,
     observer: str = "2",
+    max_bands: int | None = None,
 ) -> RenderPlan:
     """Plan the optical tables of a scene.
 
@@ -168,6 +170,8 @@ def plan_render(
         Largest Delta E 2000 allowed against exact (default :data:`DEFAULT_TARGET_DE`).
     mode
         Force a render mode ("rgb", "bands:N", "exact"); its error is still measured and reported.
+    max_bands
+        Most bands a ``bands:N`` candidate may have (a renderer's channel limit); exact follows the last one.
     """
     target = DEFAULT_TARGET_DE if accuracy_target_dE is None else float(accuracy_target_dE)
     dropped = []
@@ -201,7 +205,7 @@ def plan_render(
 
     space = working_space(scene_materials[used[0]].wavelengths, illuminant, observer)
     candidates = []
-    for candidate in [mode] if mode is not None else candidate_modes(len(space.wavelengths)):
+    for candidate in [mode] if mode is not None else candidate_modes(len(space.wavelengths), max_bands):
         errors = mode_error(kept, candidate, scene_materials, ranges, illuminant, observer)
         candidates.append(ModeCandidate(candidate, float(errors.max()), float(errors.mean())))
         if candidates[-1].max_dE <= target:

@@ -1,18 +1,20 @@
-"""Scene files (TOML) for ``kmpipe render``: one stack of films over a substrate on a mesh, a light and a camera.
+"""Scene files (TOML) for ``kmpipe render``: one stack of films over a substrate on a mesh, lights and a camera.
 
-A scene file names the mesh (a built-in shape or a mesh file), the films top first (kmpipe material files and a
-thickness each), the substrate reflectance, a directional light, a camera orbiting the mesh and, optionally, a
-turntable. Paths are relative to the scene file. Every problem is an :class:`~kmpipe.errors.InputError` naming the
-file, line and field.
+A scene file names the mesh (a built-in shape or a mesh file), the films top first (kmpipe material files, each with
+a uniform thickness or a thickness map, and optionally a specular lobe), the substrate reflectance, up to four
+directional or point lights, an optional ground under the product, a camera and, optionally, a turntable. Paths are
+relative to the scene file. Every problem is an :class:`~kmpipe.errors.InputError` naming the file, line and field.
 
 Camera: world +y is up. The camera looks at the centre of the mesh's bounding box from ``distance_mm`` away, from
 the direction given by ``azimuth_deg`` (about +y, 0 is +z, 90 is +x) and ``elevation_deg`` (above the horizontal
 plane). The built-in card faces +z, so azimuth 0 and elevation 0 see it head-on; the lipstick and compact stand
-upright (their +z axis turned to world +y).
+upright (their +z axis turned to world +y). A turntable turns the product about the vertical axis through its
+centre, by 360 / frames degrees a frame; camera, lights and ground stay put, as on a real turntable.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +23,7 @@ from typing import Annotated, Literal
 import colour
 import numpy as np
 import trimesh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
 from kmpipe.manifest import Thickness, first_validation_error, format_field, parse_thickness_mm, read_toml, toml_line
@@ -30,6 +32,8 @@ from kmpipe.optical_tables import parse_mode
 
 #: Most films in one stack (the layer pass's limit, renderer.layers.MAX_LAYERS).
 MAX_LAYERS = 4
+#: Most lights in one scene (renderer.layers.MAX_LIGHTS).
+MAX_LIGHTS = 4
 #: Built-in meshes by name.
 BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact")
 COLORCHECKER = "ColorChecker N Ohta"
@@ -42,11 +46,14 @@ class _Strict(BaseModel):
 
 class SceneInfo(_Strict):
     name: str = Field(min_length=1)
+    product: str | None = None
+    shade: str | None = None
     illuminant: str = "D65"
     mesh: str = Field(default="card", min_length=1)
     resolution: tuple[_PIXELS, _PIXELS] = (256, 256)
     accuracy: float | None = Field(default=None, gt=0.0)
     mode: str | None = None
+    shadow_map: int | None = Field(default=None, ge=64, le=8192)
 
     @field_validator("illuminant")
     @classmethod
@@ -81,23 +88,66 @@ class SubstrateInfo(_Strict):
         return value
 
 
+_Finite = Annotated[float, Field(allow_inf_nan=False)]
+_Vector = tuple[_Finite, _Finite, _Finite]
+_NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+
+
+class ThicknessMapInfo(_Strict):
+    """A thickness map: ``min`` where the image's channel is 0, ``max`` where it is 1, linear in between."""
+
+    file: str = Field(min_length=1)
+    channel: str = "R"
+    min: Thickness = "0 um"
+    max: Thickness
+
+
+class SpecularInfo(_Strict):
+    roughness: float = Field(gt=0.0, le=2.0)
+    ior: float = Field(default=1.5, ge=1.0, le=4.0)
+
+
 class LayerInfo(_Strict):
     material: str = Field(min_length=1)
-    thickness: Thickness
+    thickness: Thickness | None = None
+    thickness_map: ThicknessMapInfo | None = None
+    specular: SpecularInfo | None = None
+
+    @model_validator(mode="after")
+    def _one_thickness(self) -> LayerInfo:
+        if (self.thickness is None) == (self.thickness_map is None):
+            raise ValueError("give either thickness or thickness_map")
+        return self
 
 
 class LightInfo(_Strict):
-    direction: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    radiance: tuple[
-        Annotated[float, Field(ge=0.0)], Annotated[float, Field(ge=0.0)], Annotated[float, Field(ge=0.0)]
-    ] = (1.0, 1.0, 1.0)
+    kind: Literal["directional", "point"] = "directional"
+    direction: _Vector | None = None
+    position: _Vector | None = None
+    radiance: tuple[_NonNegative, _NonNegative, _NonNegative] = (1.0, 1.0, 1.0)
+    reference_distance_mm: float | None = Field(default=None, gt=0.0)
+    shadows: bool = True
 
-    @field_validator("direction")
-    @classmethod
-    def _non_zero(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
-        if not (all(math.isfinite(v) for v in value) and any(v != 0.0 for v in value)):
-            raise ValueError("the direction towards the light must be a finite, non-zero vector")
-        return value
+    @model_validator(mode="after")
+    def _geometry(self) -> LightInfo:
+        if self.kind == "directional":
+            if self.position is not None or self.reference_distance_mm is not None:
+                raise ValueError("a directional light has a direction, not a position or reference_distance_mm")
+            vector = self.direction if self.direction is not None else (0.0, 0.0, 1.0)
+            if not any(v != 0.0 for v in vector):
+                raise ValueError("the direction towards the light must be a non-zero vector")
+        elif self.position is None or self.direction is not None:
+            raise ValueError("a point light has a position (mm) and no direction")
+        return self
+
+
+class GroundInfo(_Strict):
+    reflectance: float = Field(ge=0.0, le=1.0)
+
+
+class OutputInfo(_Strict):
+    tone_map: Literal["none", "reinhard", "aces"] = "none"
+    exposure_ev: float = Field(default=0.0, ge=-20.0, le=20.0)
 
 
 class CameraInfo(_Strict):
@@ -116,19 +166,26 @@ class SceneFile(_Strict):
     scene: SceneInfo
     substrate: SubstrateInfo
     layer: list[LayerInfo] = Field(min_length=1, max_length=MAX_LAYERS)
-    light: LightInfo = LightInfo()
+    light: list[LightInfo] = Field(default=[LightInfo()], min_length=1, max_length=MAX_LIGHTS)
+    ground: GroundInfo | None = None
     camera: CameraInfo = CameraInfo()
     turntable: TurntableInfo | None = None
+    output: OutputInfo = OutputInfo()
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A checked scene: its file, the parsed fields, the materials (top first) and the mesh."""
+    """A checked scene: its file, the parsed fields, the materials (top first) and the mesh.
+
+    ``thicknesses_mm`` holds, per layer (top first), a number (uniform thickness, mm) or a 2-D array (a thickness
+    map over the mesh's uv, mm, row 0 at v = 1). ``material_hashes`` are the SHA-256 of the material files.
+    """
 
     path: Path
     info: SceneFile
     materials: tuple[Material, ...]
-    thicknesses_mm: tuple[float, ...]
+    thicknesses_mm: tuple[float | np.ndarray, ...]
+    material_hashes: tuple[str, ...]
     mesh: trimesh.Trimesh
     model: np.ndarray
 
@@ -140,10 +197,23 @@ class Scene:
     def wavelengths(self) -> np.ndarray:
         return self.materials[0].wavelengths
 
-    def frame_azimuths_deg(self) -> list[float]:
-        """Camera azimuth of every frame: the camera's, plus 360 i / frames on a turntable."""
+    @property
+    def product(self) -> str:
+        return self.info.scene.product or self.name
+
+    @property
+    def shade(self) -> str:
+        return self.info.scene.shade or ", ".join(m.name for m in self.materials)
+
+    def turntable_angles_deg(self) -> list[float]:
+        """The product's turn in every frame: 360 i / frames on a turntable, else one frame at 0."""
         frames = self.info.turntable.frames if self.info.turntable is not None else 1
-        return [(self.info.camera.azimuth_deg + 360.0 * i / frames) % 360.0 for i in range(frames)]
+        return [360.0 * i / frames for i in range(frames)]
+
+    def thickness_range_mm(self, layer: int) -> tuple[float, float]:
+        """(min, max) thickness (mm) of one layer (top first) over the scene."""
+        value = np.asarray(self.thicknesses_mm[layer], dtype=float)
+        return float(value.min()), float(value.max())
 
     def substrate_reflectance(self) -> np.ndarray:
         """Spectral reflectance of the substrate on the materials' wavelength grid."""
@@ -189,7 +259,7 @@ def load_scene(path: str | Path) -> Scene:
         raise InputError(message, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
 
     base = path.parent
-    materials, thicknesses, sources = [], [], {}
+    materials, thicknesses, hashes, sources = [], [], [], {}
     for i, layer in enumerate(info.layer):
         where = {"path": path, "line": toml_line(text, ("layer", i, "material")), "field": f"layer[{i + 1}].material"}
         material_path = base / layer.material
@@ -208,7 +278,11 @@ def load_scene(path: str | Path) -> Scene:
                 **where,
             )
         materials.append(material)
-        thicknesses.append(parse_thickness_mm(layer.thickness))
+        hashes.append(hashlib.sha256(material_path.read_bytes()).hexdigest())
+        if layer.thickness is not None:
+            thicknesses.append(parse_thickness_mm(layer.thickness))
+        else:
+            thicknesses.append(_thickness_map(layer.thickness_map, base, path, text, i))
 
     try:
         mesh, model = _mesh(info.scene.mesh, base)
@@ -219,4 +293,24 @@ def load_scene(path: str | Path) -> Scene:
             line=toml_line(text, ("scene", "mesh")),
             field="scene.mesh",
         ) from None
-    return Scene(path, info, tuple(materials), tuple(thicknesses), mesh, model)
+    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), mesh, model)
+
+
+def _thickness_map(info: ThicknessMapInfo, base: Path, path: Path, text: str, index: int) -> np.ndarray:
+    """The thickness map of layer ``index`` in mm: min + value * (max - min), value the image channel in [0, 1]."""
+    from renderer.image_io import read_channel
+
+    where = {"path": path, "line": toml_line(text, ("layer", index, "thickness_map")), "field": f"layer[{index + 1}]"}
+    image_path = base / info.file
+    if not image_path.is_file():
+        raise InputError(f"names the thickness map {image_path}, which does not exist", **where)
+    try:
+        value = read_channel(image_path, info.channel)
+    except (OSError, ValueError) as err:
+        raise InputError(f"cannot read the thickness map: {err}", **where) from None
+    if not (np.all(np.isfinite(value)) and value.min() >= 0.0 and value.max() <= 1.0):
+        raise InputError(f"{image_path}: thickness map values must lie in [0, 1] (min maps to min, 1 to max)", **where)
+    lo, hi = parse_thickness_mm(info.min), parse_thickness_mm(info.max)
+    if not hi > lo:
+        raise InputError(f"thickness_map.max ({info.max}) must exceed thickness_map.min ({info.min})", **where)
+    return lo + value * (hi - lo)

@@ -124,3 +124,31 @@ def read_png(path: str | Path) -> np.ndarray:
     finally:
         source.close()
     return np.asarray(pixels, dtype=np.uint8).reshape(spec.height, spec.width, spec.nchannels)
+
+
+def read_channel(path: str | Path, channel: str) -> np.ndarray:
+    """One channel of an image file as float64 (height, width), top row first, without any colour decoding.
+
+    Integer files are normalised to [0, 1] (code / max code); float files (EXR) are read as stored. ``channel`` is a
+    channel name of the file (``R``, ``G``, ``B``, ``A``, ``Y``, ...); a one-channel file answers to any name.
+    Raises :class:`OSError` when the file cannot be read and :class:`ValueError` when it has no such channel.
+    """
+    source = oiio.ImageInput.open(str(path))
+    if source is None:
+        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
+    try:
+        spec = source.spec()
+        names = list(spec.channelnames)
+        if spec.nchannels == 1:
+            index = 0
+        elif channel in names:
+            index = names.index(channel)
+        else:
+            raise ValueError(f"{path} has no channel {channel!r} (it has {', '.join(names)})")
+        pixels = source.read_image(oiio.FLOAT)
+        if pixels is None:
+            raise OSError(f"{path}: read failed: {source.geterror()}")
+    finally:
+        source.close()
+    image = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
+    return np.ascontiguousarray(image[..., index])

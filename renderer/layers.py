@@ -1,4 +1,4 @@
-"""The Kubelka-Munk layer pass: a mesh shaded by a stack of up to four films composited over a substrate.
+"""The Kubelka-Munk layer pass: a mesh shaded by a stack of up to four films over a substrate, with lights and shadows.
 
 The renderer knows nothing of K and S: each film comes as an optical table, its reflectance ``R0`` (over a black
 backing) and transmittance ``T`` sampled at a series of thicknesses (mm), per channel. The fragment shader
@@ -9,8 +9,16 @@ clamping at the ends, and composes the films bottom-up onto the substrate reflec
     Rg <- R0 + T^2 Rg / (1 - R0 Rg)
 
 Channels are either linear RGB (3) or spectral bands (up to :data:`MAX_CHANNELS`), composed per band and converted
-once with a (bands, 3) ``to_rgb`` matrix. A pixel renders as ``(R @ to_rgb) * E * max(cos theta, 0)`` with ``E`` the
-light's radiance, the value a white Lambert surface facing the light renders to (as in :mod:`renderer.render_flat`).
+once with a (bands, 3) ``to_rgb`` matrix (:class:`ChannelStack`); or the caller composes the stack itself and passes
+its linear RGB reflectance (:class:`Precomposed`, kmpipe's ``exact`` mode). Each film may carry a specular lobe
+(:class:`Specular`; Kelemen / Szirmay-Kalos with a Beckmann distribution and Schlick's Fresnel, thesis eq. 3.15),
+attenuated by the films above it. A pixel renders as
+
+    sum over lights of  E * visibility * max(cos theta, 0) * (R_rgb + pi * sum_i A_i f_spec,i)
+
+with ``E`` the light's radiance, the value a white Lambert surface facing the light renders to (as in
+:mod:`renderer.render_flat`); ``km_layers.frag`` gives every term. Lights that cast shadows get a shadow map
+(:mod:`renderer.shadows`) covering the mesh and the props, filtered with 3 x 3 PCF taps.
 """
 
 from __future__ import annotations
@@ -26,12 +34,15 @@ from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.meshes import GpuMesh
 from renderer.program import Program
-from renderer.scene import Camera, DirectionalLight
+from renderer.scene import Camera, Light, OrthographicCamera, PointLight
+from renderer.shadows import ShadowMap, light_view_projection, shadow_matrix
 
 #: Most films in one stack.
 MAX_LAYERS = 4
 #: Most channels (bands) per table; the shader works on groups of four.
 MAX_CHANNELS = 32
+#: Most lights in one render.
+MAX_LIGHTS = 4
 
 _program: Program | None = None
 
@@ -121,31 +132,33 @@ def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> 
     return texels
 
 
-def render_layers(
-    mesh: trimesh.Trimesh,
-    camera: Camera,
-    light: DirectionalLight,
-    tables: Sequence[LayerTable],
-    thicknesses: Sequence[float | np.ndarray],
-    substrate: Sequence[float] | np.ndarray,
-    width: int,
-    height: int,
-    *,
-    to_rgb: np.ndarray | None = None,
-    model: np.ndarray | None = None,
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-) -> np.ndarray:
-    """Render ``mesh`` covered by a Kubelka-Munk stack of films over a substrate into a float image.
+@dataclass(frozen=True)
+class Specular:
+    """A film's specular lobe: Beckmann roughness ``m`` (RMS microfacet slope, > 0) and index of refraction ``ior``.
 
-    Parameters
+    Schlick's Fresnel reflectance at normal incidence is ``F0 = ((ior - 1) / (ior + 1))^2`` (air above the film).
+    """
+
+    roughness: float
+    ior: float = 1.5
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.roughness <= 2.0 and 1.0 <= self.ior <= 4.0):
+            raise ValueError(
+                f"a specular lobe needs 0 < roughness <= 2 and 1 <= ior <= 4, got {self.roughness}, {self.ior}"
+            )
+
+    @property
+    def f0(self) -> float:
+        return ((self.ior - 1.0) / (self.ior + 1.0)) ** 2
+
+
+@dataclass(frozen=True)
+class ChannelStack:
+    """Films composited in the shader, per channel.
+
+    Attributes
     ----------
-    mesh
-        Triangle mesh in mm with per-vertex normals and uv (see :mod:`renderer.meshes`).
-    camera
-        Orthographic or perspective camera; its aspect ratio is ``width / height``.
-    light
-        Directional light; a pixel renders as ``(R @ to_rgb) * light.radiance * max(cos theta, 0)`` with ``R`` the
-        stack's reflectance per channel.
     tables
         Optical tables of 0 to :data:`MAX_LAYERS` films, top first (``tables[0]`` is the layer the light meets first,
         the last lies on the substrate; the order of kmpipe's stacks). All have the same number of channels C (3 for
@@ -156,33 +169,77 @@ def render_layers(
         Thicknesses outside a table's range take the value at the nearer end.
     substrate
         Albedo of the substrate per channel, in [0, 1], shape (C,).
-    width, height
-        Image size in pixels.
     to_rgb
-        (C, 3) matrix converting per-channel reflectance to linear RGB (bands mode); if omitted C must be 3 and the
+        (C, 3) matrix converting per-channel reflectance to linear RGB (bands); if omitted C must be 3 and the
         channels are linear RGB.
-    model
-        Object -> world matrix (4, 4); identity if omitted.
-    background
-        Linear RGB of pixels the mesh does not cover (any float, unclamped).
-
-    Returns
-    -------
-    np.ndarray
-        Linear RGB, float32, shape (height, width, 3), top row first.
     """
-    if len(tables) > MAX_LAYERS:
-        raise ValueError(f"at most {MAX_LAYERS} layers can be composited, got {len(tables)}")
-    if len(thicknesses) != len(tables):
-        raise ValueError(f"one thickness per layer is needed: {len(tables)} tables, {len(thicknesses)} thicknesses")
+
+    tables: Sequence[LayerTable]
+    thicknesses: Sequence[float | np.ndarray]
+    substrate: Sequence[float] | np.ndarray
+    to_rgb: np.ndarray | None = None
+
+    @property
+    def n_layers(self) -> int:
+        return len(self.tables)
+
+
+@dataclass(frozen=True)
+class Precomposed:
+    """A stack composited by the caller, in linear RGB.
+
+    Attributes
+    ----------
+    reflectance
+        The stack's reflectance over its substrate, linear RGB: shape (3,) (uniform) or (rows, columns, 3) over uv
+        (row 0 at v = 1), bilinearly filtered.
+    attenuation
+        Top first, one per film: the RGB attenuation ``A_i`` of the film's specular lobe by the films above it (1 for
+        the top film), shape (n_layers, 3) or (n_layers, rows, columns, 3) on the grid of ``reflectance``.
+    """
+
+    reflectance: np.ndarray
+    attenuation: np.ndarray
+
+    @property
+    def n_layers(self) -> int:
+        return len(self.attenuation)
+
+
+@dataclass(frozen=True)
+class Prop:
+    """A plain diffuse object beside the product (a floor, a stand): Lambert ``albedo`` (linear RGB in [0, 1]).
+
+    It receives light and shadows and casts shadows; ``model`` is its object -> world matrix (identity if None).
+    """
+
+    mesh: trimesh.Trimesh
+    albedo: tuple[float, float, float]
+    model: np.ndarray | None = None
+
+
+def _check_lights(lights: Sequence[Light]) -> None:
+    if not 1 <= len(lights) <= MAX_LIGHTS:
+        raise ValueError(f"between 1 and {MAX_LIGHTS} lights are needed, got {len(lights)}")
+
+
+def _channel_uniforms(stack: ChannelStack) -> dict:
+    """Validated per-draw data of a channel stack (bottom-up), as the shader wants it."""
+    if stack.n_layers > MAX_LAYERS:
+        raise ValueError(f"at most {MAX_LAYERS} layers can be composited, got {stack.n_layers}")
+    if len(stack.thicknesses) != stack.n_layers:
+        raise ValueError(
+            f"one thickness per layer is needed: {stack.n_layers} tables, {len(stack.thicknesses)} thicknesses"
+        )
     # From here on bottom-up, the order of the composition: index 0 lies on the substrate.
-    tables, thicknesses = list(tables)[::-1], list(thicknesses)[::-1]
-    substrate = np.asarray(substrate, dtype=float)
+    tables, thicknesses = list(stack.tables)[::-1], list(stack.thicknesses)[::-1]
+    substrate = np.asarray(stack.substrate, dtype=float)
     if substrate.ndim != 1 or not 1 <= substrate.size <= MAX_CHANNELS:
         raise ValueError(f"substrate must have shape (C,) with 1 <= C <= {MAX_CHANNELS}, got {substrate.shape}")
     channels = substrate.size
     if not (np.all(np.isfinite(substrate)) and substrate.min() >= 0.0 and substrate.max() <= 1.0):
         raise ValueError("substrate albedo must lie in [0, 1]")
+    to_rgb = stack.to_rgb
     if to_rgb is None:
         if channels != 3:
             raise ValueError(f"{channels} channels need a ({channels}, 3) to_rgb matrix")
@@ -210,69 +267,282 @@ def render_layers(
             maps.append(None)
         else:
             maps.append(value)
+    return {"arrays": arrays, "maps": maps, "uniform": uniform, "substrate": substrate, "to_rgb": to_rgb}
 
+
+def _composite_texels(stack: Precomposed) -> np.ndarray:
+    """Texels (1 + n_layers, rows, columns, 4) of a precomposed stack, bottom-up layers, row 0 at v = 0."""
+    reflectance = np.asarray(stack.reflectance, dtype=float)
+    attenuation = np.asarray(stack.attenuation, dtype=float)
+    if not 1 <= stack.n_layers <= MAX_LAYERS:
+        raise ValueError(f"a precomposed stack needs 1 to {MAX_LAYERS} layers, got {stack.n_layers}")
+    if reflectance.shape == (3,):
+        reflectance = reflectance.reshape(1, 1, 3)
+        attenuation = attenuation.reshape(-1, 1, 1, 3) if attenuation.shape == (stack.n_layers, 3) else attenuation
+    if reflectance.ndim != 3 or reflectance.shape[2] != 3 or attenuation.shape != (stack.n_layers, *reflectance.shape):
+        raise ValueError(
+            "a precomposed stack needs reflectance (3,) with attenuation (n_layers, 3), or reflectance "
+            f"(rows, columns, 3) with attenuation (n_layers, rows, columns, 3); got {reflectance.shape} and "
+            f"{attenuation.shape}"
+        )
+    if not (np.all(np.isfinite(reflectance)) and np.all(np.isfinite(attenuation))):
+        raise ValueError("a precomposed stack must be finite")
+    layers = np.concatenate([reflectance[np.newaxis], attenuation[::-1]])  # attenuation bottom-up
+    texels = np.zeros((*layers.shape[:3], 4), dtype=np.float32)
+    texels[..., :3] = layers[:, ::-1]  # row 0 of an image is the top (v = 1); texture row 0 is v = 0
+    return texels
+
+
+def _array_texture(texels: np.ndarray) -> int:
+    """Upload (layers, rows, columns, 4) float texels as a bilinear RGBA32F 2-D array texture, clamped at the edges."""
+    layers, rows, columns = texels.shape[:3]
+    texture = GL.glGenTextures(1)
+    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
+    GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 4)
+    GL.glTexImage3D(
+        GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_RGBA32F, columns, rows, layers, 0, GL.GL_RGBA, GL.GL_FLOAT,
+        np.ascontiguousarray(texels, dtype=np.float32),
+    )  # fmt: skip
+    for parameter, value in (
+        (GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR),
+        (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+        (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE),
+        (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
+    ):
+        GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, parameter, value)
+    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+    return texture
+
+
+def _world_bounds(draws: Sequence[tuple[trimesh.Trimesh, np.ndarray]]) -> tuple[np.ndarray, float]:
+    """Centre (mm) and radius (mm) of a sphere around every mesh, placed by its model matrix."""
+    points = np.concatenate([np.asarray(mesh.vertices) @ model[:3, :3].T + model[:3, 3] for mesh, model in draws])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    return centre, float(np.max(np.linalg.norm(points - centre, axis=1)))
+
+
+# Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12. Every sampler has a unit
+# of its own (GL forbids samplers of different types on one unit, even unused ones).
+_COMPOSITE_UNIT = 2 * MAX_LAYERS
+_SHADOW_UNIT = _COMPOSITE_UNIT + 1
+
+
+def render_layers(
+    mesh: trimesh.Trimesh,
+    camera: Camera,
+    lights: Sequence[Light],
+    stack: ChannelStack | Precomposed,
+    width: int,
+    height: int,
+    *,
+    specular: Sequence[Specular | None] = (),
+    model: np.ndarray | None = None,
+    props: Sequence[Prop] = (),
+    shadow_map_size: int = 1024,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> np.ndarray:
+    """Render ``mesh`` covered by a Kubelka-Munk stack of films, and any props, into a float image.
+
+    Parameters
+    ----------
+    mesh
+        Triangle mesh in mm with per-vertex normals and uv (see :mod:`renderer.meshes`).
+    camera
+        Orthographic or perspective camera; its aspect ratio is ``width / height``.
+    lights
+        1 to :data:`MAX_LIGHTS` directional or point lights; those with ``cast_shadows`` get a shadow map of
+        ``shadow_map_size`` texels square covering the mesh and the props.
+    stack
+        The films over the substrate: a :class:`ChannelStack` composited in the shader or a :class:`Precomposed`
+        stack.
+    width, height
+        Image size in pixels.
+    specular
+        Top first, one per film (None: no lobe), or empty for no lobes at all.
+    model
+        Object -> world matrix (4, 4) of ``mesh``; identity if omitted.
+    props
+        Diffuse objects beside the mesh (:class:`Prop`).
+    background
+        Linear RGB of pixels no surface covers (any float, unclamped).
+
+    Returns
+    -------
+    np.ndarray
+        Linear RGB, float32, shape (height, width, 3), top row first.
+    """
+    _check_lights(lights)
+    specular = list(specular) or [None] * stack.n_layers
+    if len(specular) != stack.n_layers:
+        raise ValueError(f"one specular entry per layer is needed: {stack.n_layers} layers, {len(specular)} entries")
+    if isinstance(stack, ChannelStack):
+        channel = _channel_uniforms(stack)
+        composite_texels = None
+    else:
+        channel = None
+        composite_texels = _composite_texels(stack)
+    model = np.eye(4) if model is None else np.asarray(model, dtype=float)
+    draws = [(mesh, model)] + [(p.mesh, np.eye(4) if p.model is None else np.asarray(p.model, float)) for p in props]
+    for prop in props:
+        albedo = np.asarray(prop.albedo, dtype=float)
+        if albedo.shape != (3,) or not (np.all(np.isfinite(albedo)) and 0.0 <= albedo.min() <= albedo.max() <= 1.0):
+            raise ValueError(f"a prop's albedo must be linear RGB in [0, 1], got {prop.albedo}")
+    view_projection = camera.projection_matrix(width / height) @ camera.view_matrix()
+    context.make_current(width, height)
+    program = _layers_program()
+    textures: list[int] = []
+    shadow_maps: list[ShadowMap] = []
+    gpu_meshes: list[GpuMesh] = []
+    try:
+        gpu_meshes = [GpuMesh(m) for m, _ in draws]
+        centre, radius = _world_bounds(draws)
+        shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
+        casts = np.zeros(MAX_LIGHTS, dtype=np.int32)
+        for index, light in enumerate(lights):
+            if light.cast_shadows:
+                shadow_maps.append(ShadowMap(shadow_map_size))
+                light_matrix = light_view_projection(light, centre, radius)
+                shadow_maps[-1].render(list(zip(gpu_meshes, [m for _, m in draws], strict=True)), light_matrix)
+                shadow_matrices[index] = shadow_matrix(light_matrix)
+                casts[index] = 1
+        shadow_textures = iter(shadow_map.texture for shadow_map in shadow_maps)
+        with Framebuffer(width, height) as target:
+            target.clear((*background, 0.0))
+            GL.glEnable(GL.GL_DEPTH_TEST)
+            GL.glDepthFunc(GL.GL_LESS)
+            program.use()
+            program.set_mat4("u_view_projection", view_projection)
+            _set_lights(program, lights, casts, shadow_matrices)
+            _set_view(program, camera)
+            for index in range(MAX_LIGHTS):
+                GL.glUniform1i(_location(program, f"u_shadow{index}"), _SHADOW_UNIT + index)
+                GL.glActiveTexture(GL.GL_TEXTURE0 + _SHADOW_UNIT + index)
+                GL.glBindTexture(GL.GL_TEXTURE_2D, next(shadow_textures) if casts[index] else 0)
+            for index in range(MAX_LAYERS):
+                GL.glUniform1i(_location(program, f"u_table{index}"), index)
+                GL.glUniform1i(_location(program, f"u_map{index}"), MAX_LAYERS + index)
+            GL.glUniform1i(_location(program, "u_composite"), _COMPOSITE_UNIT)
+
+            # The product.
+            if channel is not None:
+                textures += _bind_channel_stack(program, channel)
+            else:
+                textures.append(_array_texture(composite_texels))
+                _bind_precomposed(program, stack.n_layers, textures[-1])
+            _set_specular(program, specular[::-1])
+            _draw(program, gpu_meshes[0], model)
+            # The props: bare Lambert substrates in RGB.
+            _set_specular(program, [])
+            for prop, gpu_mesh, (_, prop_model) in zip(props, gpu_meshes[1:], draws[1:], strict=True):
+                textures += _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
+                _draw(program, gpu_mesh, prop_model)
+            GL.glFinish()
+            return target.read_rgba()[..., :3]
+    finally:
+        for unit_index in range(_SHADOW_UNIT + MAX_LIGHTS):
+            GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+            GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        if textures:
+            GL.glDeleteTextures(len(textures), textures)
+        for item in [*shadow_maps, *gpu_meshes]:
+            item.release()
+
+
+def _draw(program: Program, gpu_mesh: GpuMesh, model: np.ndarray) -> None:
+    program.set_mat4("u_model", model)
+    program.set_mat3("u_normal_matrix", np.linalg.inv(model[:3, :3]).T)
+    gpu_mesh.draw()
+
+
+def _set_lights(program: Program, lights: Sequence[Light], casts: np.ndarray, shadow_matrices: np.ndarray) -> None:
+    is_point = np.zeros(MAX_LIGHTS, dtype=np.int32)
+    vectors = np.zeros((MAX_LIGHTS, 3))
+    radiance = np.zeros((MAX_LIGHTS, 3))
+    reference = np.ones(MAX_LIGHTS)
+    for index, light in enumerate(lights):
+        radiance[index] = light.radiance
+        if isinstance(light, PointLight):
+            is_point[index], vectors[index], reference[index] = 1, light.position, light.reference_distance_mm
+        else:
+            vectors[index] = light.to_light()
+    GL.glUniform1i(_location(program, "u_light_count"), len(lights))
+    GL.glUniform1iv(_location(program, "u_light_is_point"), MAX_LIGHTS, is_point)
+    GL.glUniform3fv(_location(program, "u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
+    GL.glUniform3fv(_location(program, "u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
+    GL.glUniform1fv(_location(program, "u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
+    GL.glUniform1iv(_location(program, "u_light_shadow"), MAX_LIGHTS, casts)
+    GL.glUniformMatrix4fv(
+        _location(program, "u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
+    )
+
+
+def _set_view(program: Program, camera: Camera) -> None:
+    """The view direction: constant (towards the camera) for an orthographic camera, else from the eye position."""
+    orthographic = isinstance(camera, OrthographicCamera)
+    GL.glUniform1i(_location(program, "u_orthographic"), int(orthographic))
+    if orthographic:
+        program.set_vec3("u_view_vector", np.linalg.inv(camera.view_matrix())[:3, 2])
+    else:
+        program.set_vec3("u_view_vector", camera.eye)
+
+
+def _set_specular(program: Program, lobes_bottom_up: Sequence[Specular | None]) -> None:
+    on = np.zeros(MAX_LAYERS, dtype=np.int32)
+    roughness = np.ones(MAX_LAYERS)
+    f0 = np.zeros(MAX_LAYERS)
+    for index, lobe in enumerate(lobes_bottom_up):
+        if lobe is not None:
+            on[index], roughness[index], f0[index] = 1, lobe.roughness, lobe.f0
+    GL.glUniform1iv(_location(program, "u_specular_on"), MAX_LAYERS, on)
+    GL.glUniform1fv(_location(program, "u_roughness"), MAX_LAYERS, roughness.astype(np.float32))
+    GL.glUniform1fv(_location(program, "u_f0"), MAX_LAYERS, f0.astype(np.float32))
+
+
+def _bind_precomposed(program: Program, n_layers: int, texture: int) -> None:
+    GL.glUniform1i(_location(program, "u_precomposed"), 1)
+    GL.glUniform1i(_location(program, "u_layer_count"), n_layers)
+    GL.glActiveTexture(GL.GL_TEXTURE0 + _COMPOSITE_UNIT)
+    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
+
+
+def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
+    """Set the uniforms and bind the textures of a channel stack; returns the textures created (caller deletes)."""
+    arrays, maps, substrate = channel["arrays"], channel["maps"], channel["substrate"]
+    channels = substrate.size
     groups = -(-channels // 4)
     substrate_groups = np.zeros(4 * (MAX_CHANNELS // 4))
     substrate_groups[:channels] = substrate
     to_rgb_rows = np.zeros((MAX_CHANNELS, 3))
-    to_rgb_rows[:channels] = to_rgb
+    to_rgb_rows[:channels] = channel["to_rgb"]
     sample_count = np.ones(MAX_LAYERS, dtype=np.int32)
     use_map = np.zeros(MAX_LAYERS, dtype=np.int32)
     for index, (x, _, _) in enumerate(arrays):
         sample_count[index] = x.size
         use_map[index] = maps[index] is not None
-
-    model = np.eye(4) if model is None else np.asarray(model, dtype=float)
-    view_projection = camera.projection_matrix(width / height) @ camera.view_matrix()
-    context.make_current(width, height)
-    program = _layers_program()
-    textures: list[int] = []
-    try:
-        for x, r0, t in arrays:
-            textures.append(_float_texture(_table_texels(x, r0, t, groups), linear=False))
-        table_textures = textures + [0] * (MAX_LAYERS - len(textures))
-        map_textures = []
-        for thickness_map in [*maps, *[None] * (MAX_LAYERS - len(maps))]:
-            if thickness_map is None:
-                map_textures.append(0)
-            else:
-                texels = np.zeros((*thickness_map.shape, 4))
-                texels[..., 0] = thickness_map[::-1]  # row 0 of the map is the top (v = 1)
-                textures.append(_float_texture(texels, linear=True))
-                map_textures.append(textures[-1])
-        with Framebuffer(width, height) as target, GpuMesh(mesh) as gpu_mesh:
-            target.clear((*background, 0.0))
-            GL.glEnable(GL.GL_DEPTH_TEST)
-            GL.glDepthFunc(GL.GL_LESS)
-            program.use()
-            program.set_mat4("u_model", model)
-            program.set_mat4("u_view_projection", view_projection)
-            program.set_mat3("u_normal_matrix", np.linalg.inv(model[:3, :3]).T)
-            program.set_vec3("u_light_radiance", light.radiance)
-            program.set_vec3("u_to_light", light.to_light())
-            GL.glUniform1i(_location(program, "u_layer_count"), len(arrays))
-            GL.glUniform1i(_location(program, "u_group_count"), groups)
-            GL.glUniform1iv(_location(program, "u_sample_count"), MAX_LAYERS, sample_count)
-            GL.glUniform1iv(_location(program, "u_use_map"), MAX_LAYERS, use_map)
-            GL.glUniform1fv(_location(program, "u_thickness"), MAX_LAYERS, uniform.astype(np.float32))
-            GL.glUniform4fv(_location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
-            GL.glUniform3fv(_location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
-            for index in range(MAX_LAYERS):
-                for unit, (name, texture) in enumerate(
-                    ((f"u_table{index}", table_textures[index]), (f"u_map{index}", map_textures[index]))
-                ):
-                    unit_index = 2 * index + unit
-                    GL.glUniform1i(_location(program, name), unit_index)
-                    GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
-                    GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
-            gpu_mesh.draw()
-            GL.glFinish()
-            image = target.read_rgba()[..., :3]
-        return image
-    finally:
-        for unit_index in range(2 * MAX_LAYERS):
-            GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
-            GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
-        GL.glActiveTexture(GL.GL_TEXTURE0)
-        if textures:
-            GL.glDeleteTextures(len(textures), textures)
+    GL.glUniform1i(_location(program, "u_precomposed"), 0)
+    GL.glUniform1i(_location(program, "u_layer_count"), len(arrays))
+    GL.glUniform1i(_location(program, "u_group_count"), groups)
+    GL.glUniform1iv(_location(program, "u_sample_count"), MAX_LAYERS, sample_count)
+    GL.glUniform1iv(_location(program, "u_use_map"), MAX_LAYERS, use_map)
+    GL.glUniform1fv(_location(program, "u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
+    GL.glUniform4fv(_location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
+    GL.glUniform3fv(_location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
+    created = []
+    for index in range(MAX_LAYERS):
+        table_texture = map_texture = 0
+        if index < len(arrays):
+            x, r0, t = arrays[index]
+            created.append(_float_texture(_table_texels(x, r0, t, groups), linear=False))
+            table_texture = created[-1]
+            if maps[index] is not None:
+                texels = np.zeros((*maps[index].shape, 4))
+                texels[..., 0] = maps[index][::-1]  # row 0 of the map is the top (v = 1)
+                created.append(_float_texture(texels, linear=True))
+                map_texture = created[-1]
+        for unit, texture in ((index, table_texture), (MAX_LAYERS + index, map_texture)):
+            GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+    return created

@@ -46,7 +46,7 @@ reflectance = 0.5
 material = "{material}"
 thickness = "20 um"
 
-[light]
+[[light]]
 direction = [0, 0, 1]
 radiance = [{", ".join(map(str, RADIANCE))}]
 
@@ -67,10 +67,9 @@ def test_card_centre_pixel_matches_the_planned_composite(tmp_path, material_file
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
     capsys.readouterr()
     scene = load_scene(scene_path)
-    plan, note = plan_scene(scene)
-    assert note is None
+    plan = plan_scene(scene)
     material = read_material(material_file)
-    table = plan.build_tables({material.name: material})[material.name]
+    table = plan.tables.build_tables({material.name: material})[material.name]
     expected = composite([table], [0.02], np.full(len(material.wavelengths), 0.5), plan.mode) * np.array(RADIANCE)
 
     pixels, header = read_exr(tmp_path / "out" / "frame_000.exr")
@@ -94,8 +93,7 @@ def test_card_centre_pixel_matches_the_planned_composite(tmp_path, material_file
 
 def test_forced_mode_is_used(tmp_path, material_file):
     scene_path = write_scene(tmp_path, material_file, mode_line='mode = "bands:6"')
-    plan, _ = plan_scene(load_scene(scene_path))
-    assert plan.mode == "bands:6"
+    assert plan_scene(load_scene(scene_path)).mode == "bands:6"
 
 
 def test_turntable_writes_frames_with_their_azimuths(tmp_path, material_file, capsys):
@@ -123,13 +121,33 @@ def test_explain_prints_the_chosen_mode(tmp_path, material_file, capsys):
     assert "rgb" in out and "<- chosen" in out
 
 
-def test_exact_is_rendered_as_bands(tmp_path, material_file, capsys):
+def km_reflectance(K, S, X, Rg):
+    """The textbook KM reflectance of a film over a ground (Kubelka 1948), written out here for the test."""
+    a = 1.0 + K / S
+    b = np.sqrt(a**2 - 1.0)
+    coth = 1.0 / np.tanh(b * S * X)
+    return (1.0 - Rg * (a - b * coth)) / (a - Rg + b * coth)
+
+
+def test_exact_mode_renders_the_km_prediction_in_srgb(tmp_path, material_file, capsys):
+    """A uniform film on a card head-on renders to KM's reflectance through colour-science's sRGB, within 1/255."""
+    import colour
+
     scene_path = write_scene(tmp_path, material_file, mode_line='mode = "exact"')
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out"), "--explain"]) == 0
-    out = capsys.readouterr().out
-    assert "rendering in bands:32" in out
-    _, header = read_exr(tmp_path / "out" / "frame_000.exr")
-    assert header["render_mode"] == "bands:32"
+    assert "composed per wavelength" in capsys.readouterr().out
+    material = read_material(material_file)
+    R = km_reflectance(material.K, material.S, 0.02, 0.5)
+    sd = colour.SpectralDistribution(dict(zip(material.wavelengths, R, strict=True)))
+    illuminant = colour.SDS_ILLUMINANTS["D65"]
+    XYZ = colour.sd_to_XYZ(sd, illuminant=illuminant, method="Integration") / 100.0
+    expected = colour.XYZ_to_RGB(XYZ, "sRGB", apply_cctf_encoding=False) * np.array(RADIANCE)
+
+    pixels, header = read_exr(tmp_path / "out" / "frame_000.exr")
+    assert header["render_mode"] == "exact"
+    np.testing.assert_allclose(pixels[SIZE // 2, SIZE // 2], expected, rtol=2e-3)
+    png = read_png(tmp_path / "out" / "frame_000.png").astype(np.float64)
+    assert np.max(np.abs(png[SIZE // 2, SIZE // 2] - srgb_encode(expected) * 255.0)) <= 1.0
 
 
 def test_unknown_key_exits_2_naming_file_line_and_field(tmp_path, material_file, capsys):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from renderer import meshes
-from renderer.layers import MAX_LAYERS, LayerTable, render_layers
+from renderer.layers import MAX_LAYERS, ChannelStack, LayerTable, render_layers
 from renderer.scene import DirectionalLight, OrthographicCamera
 
 SIZE = 64
@@ -54,10 +54,9 @@ def card_mask() -> np.ndarray:
     return np.broadcast_to((np.abs(y) < 5.0)[:, None], (SIZE, SIZE))
 
 
-def render(tables, thicknesses, substrate, **kwargs) -> np.ndarray:
-    return render_layers(
-        CARD, CAMERA, HEAD_ON, tables, thicknesses, substrate, SIZE, SIZE, background=BACKGROUND, **kwargs
-    )
+def render(tables, thicknesses, substrate, to_rgb=None, light=HEAD_ON) -> np.ndarray:
+    stack = ChannelStack(tables, thicknesses, substrate, to_rgb)
+    return render_layers(CARD, CAMERA, [light], stack, SIZE, SIZE, background=BACKGROUND)
 
 
 def assert_card_equals(image: np.ndarray, rgb: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -181,7 +180,7 @@ def test_tilting_the_light_scales_by_cos_theta(theta_deg):
     light = DirectionalLight(direction=(0.0, -np.sin(theta), -np.cos(theta)), radiance=tuple(RADIANCE))
     table = make_table(8)
     substrate = np.array([0.3, 0.6, 0.9])
-    image = render_layers(CARD, CAMERA, light, [table], [0.02], substrate, SIZE, SIZE, background=BACKGROUND)
+    image = render([table], [0.02], substrate, light=light)
     expected = reference([table], [0.02], substrate) * RADIANCE * np.cos(theta)
     assert_card_equals(image, expected)
 

@@ -1,23 +1,43 @@
 #version 330 core
-// Kubelka-Munk layer compositing under one directional light (linear, per channel).
+// Kubelka-Munk layer compositing with per-layer specular lobes, under up to 4 lights with shadow maps.
 //
-// Up to 4 layers, listed bottom-up (layer 0 lies on the substrate). For each layer the fragment looks up the
-// reflectance R0 and transmittance T of the film at its thickness X (mm) in an optical table, interpolating
+// Diffuse part. Up to 4 layers, listed bottom-up (layer 0 lies on the substrate). For each layer the fragment looks
+// up the reflectance R0 and transmittance T of the film at its thickness X (mm) in an optical table, interpolating
 // linearly between thickness samples and clamping at the ends, then composes it onto the reflectance Rg of
 // everything beneath it (thesis eq. 3.13):  Rg <- R0 + T^2 Rg / (1 - R0 Rg).
 // Channels are rgb (3) or spectral bands (up to MAX_CHANNELS), processed four at a time as vec4 groups; the
-// composite is converted to linear RGB with u_to_rgb and multiplied by E * max(cos theta, 0).
+// composite is converted to linear RGB with u_to_rgb. In precomposed mode (u_precomposed = 1, the `exact` render
+// mode) the stack's linear RGB reflectance and each layer's specular attenuation come ready-made from u_composite.
+//
+// Specular part (thesis eq. 3.15, Kelemen and Szirmay-Kalos 2001), for each layer with a lobe, at the layer's own
+// top surface (all layers share the mesh's normal N):
+//   f_spec = P(H) F(H.L) / (2 (1 + L.V)),  P(H) = exp(-tan^2(a) / m^2) / (pi m^2 cos^4(a)),  cos(a) = N.H,
+//   F(c) = F0 + (1 - F0) (1 - c)^5 (Schlick),  F0 = ((n - 1) / (n + 1))^2.
+// P carries the 1/pi that normalises the Beckmann distribution (integral of P cos(a) over the hemisphere = 1; the
+// thesis prints it without), so a lobe reflects at most the fraction F of the light. The light reaching layer i and
+// coming back out is attenuated by the films above it: A_i = product over layers j above i of T_j^2 (per channel,
+// converted to RGB like the diffuse part).
+//
+// Radiance. With E_l the light's value for a white Lambert surface facing it (the unit of the whole renderer) and
+// v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, 0 = shadowed, 1 = lit):
+//   colour = sum over lights of E_l v_l max(N.L, 0) (R_rgb + pi sum_i A_i f_spec,i)
+// (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
 //
 // Table texture layout (RGBA32F, read with texelFetch, one texel column per thickness sample):
 //   rows 0 .. G-1      R0 of channel group g (channels 4g .. 4g+3)
 //   rows G .. 2G-1     T of channel group g
 //   row  2G            thickness of the sample in mm (red)
 // Padding channels hold R0 = T = 0 and a zero row of u_to_rgb, so they contribute nothing.
+// Composite texture (precomposed mode; 2-D array over uv): layer 0 the stack's RGB reflectance, layer 1 + i the RGB
+// specular attenuation A of layer i (bottom-up index, as above).
 
 #define MAX_LAYERS 4
 #define MAX_GROUPS 8
 #define MAX_CHANNELS 32
+#define MAX_LIGHTS 4
+#define PI 3.14159265358979
 
+in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
 
@@ -36,8 +56,27 @@ uniform sampler2D u_map2;
 uniform sampler2D u_map3;
 uniform vec4 u_substrate[MAX_GROUPS];        // substrate albedo per channel, in [0, 1]
 uniform vec3 u_to_rgb[MAX_CHANNELS];         // row c: linear RGB contributed by unit reflectance in channel c
-uniform vec3 u_light_radiance;               // E: value rendered for a white Lambert surface facing the light
-uniform vec3 u_to_light;                     // unit world-space vector from the surface towards the light
+uniform int u_precomposed;                   // 1: reflectance and attenuation from u_composite
+uniform sampler2DArray u_composite;          // precomposed layers (layout above)
+
+uniform int u_specular_on[MAX_LAYERS];       // 1: the layer has a lobe
+uniform float u_roughness[MAX_LAYERS];       // Beckmann m (RMS microfacet slope), > 0
+uniform float u_f0[MAX_LAYERS];              // Fresnel reflectance at normal incidence
+
+uniform int u_light_count;                   // 0 .. MAX_LIGHTS
+uniform int u_light_is_point[MAX_LIGHTS];    // 0: directional, 1: point
+uniform vec3 u_light_vector[MAX_LIGHTS];     // directional: unit vector towards the light; point: position (mm)
+uniform vec3 u_light_radiance[MAX_LIGHTS];   // E (at the reference distance for a point light)
+uniform float u_light_reference[MAX_LIGHTS]; // point light: distance (mm) at which it delivers E
+uniform int u_light_shadow[MAX_LIGHTS];      // 1: look the light's shadow map up
+uniform mat4 u_shadow_matrix[MAX_LIGHTS];    // world -> shadow map texture coordinates and depth, [0, 1]^3
+uniform sampler2DShadow u_shadow0;
+uniform sampler2DShadow u_shadow1;
+uniform sampler2DShadow u_shadow2;
+uniform sampler2DShadow u_shadow3;
+
+uniform int u_orthographic;                  // 1: the view direction is u_view_vector everywhere
+uniform vec3 u_view_vector;                  // orthographic: unit vector towards the camera; else: eye (mm)
 
 layout(location = 0) out vec4 f_colour;
 
@@ -49,8 +88,8 @@ float layer_thickness(int layer) {
     return texture(u_map3, v_uv).r;
 }
 
-// Composes one layer, whose table is `table` with `n` samples, onto the reflectance groups `ground`.
-void compose(sampler2D table, int n, float x, inout vec4 ground[MAX_GROUPS]) {
+// R0 and T of one layer, whose table is `table` with `n` samples, at thickness x (groups 0 .. G-1).
+void look_up(sampler2D table, int n, float x, out vec4 r0[MAX_GROUPS], out vec4 t[MAX_GROUPS]) {
     int rows = 2 * u_group_count;
     // Segment [j0, j1] holding x and the weight w of sample j1; clamped at both ends.
     int j0 = 0;
@@ -73,33 +112,129 @@ void compose(sampler2D table, int n, float x, inout vec4 ground[MAX_GROUPS]) {
             w = (x - x0) / (x1 - x0);
         }
     }
-    for (int g = 0; g < u_group_count; ++g) {
-        vec4 r0 = mix(texelFetch(table, ivec2(j0, g), 0), texelFetch(table, ivec2(j1, g), 0), w);
+    for (int g = 0; g < MAX_GROUPS; ++g) {
+        r0[g] = vec4(0.0);
+        t[g] = vec4(0.0);
+        if (g >= u_group_count) continue;
+        r0[g] = mix(texelFetch(table, ivec2(j0, g), 0), texelFetch(table, ivec2(j1, g), 0), w);
         int gt = g + u_group_count;
-        vec4 t = mix(texelFetch(table, ivec2(j0, gt), 0), texelFetch(table, ivec2(j1, gt), 0), w);
-        vec4 rg = ground[g];
-        vec4 denominator = vec4(1.0) - r0 * rg;
-        // Padding channels (r0 = t = rg = 0) and a lossless white over a white ground (denominator 0) stay finite.
-        vec4 safe = max(denominator, vec4(1e-30));
-        ground[g] = r0 + t * t * rg / safe;
+        t[g] = mix(texelFetch(table, ivec2(j0, gt), 0), texelFetch(table, ivec2(j1, gt), 0), w);
     }
 }
 
-void main() {
-    vec4 reflectance[MAX_GROUPS];
-    for (int g = 0; g < MAX_GROUPS; ++g) reflectance[g] = u_substrate[g];
+vec3 to_rgb(vec4 channels[MAX_GROUPS]) {
+    vec3 rgb = vec3(0.0);
+    for (int g = 0; g < u_group_count; ++g) {
+        for (int k = 0; k < 4; ++k) rgb += channels[g][k] * u_to_rgb[4 * g + k];
+    }
+    return rgb;
+}
+
+// The stack's linear RGB reflectance and the RGB specular attenuation of each layer (bottom-up index).
+void stack_optics(out vec3 reflectance, out vec3 attenuation[MAX_LAYERS]) {
+    if (u_precomposed == 1) {
+        reflectance = texture(u_composite, vec3(v_uv, 0.0)).rgb;
+        for (int layer = 0; layer < MAX_LAYERS; ++layer) {
+            attenuation[layer] = layer < u_layer_count ? texture(u_composite, vec3(v_uv, float(layer + 1))).rgb
+                                                       : vec3(0.0);
+        }
+        return;
+    }
+    vec4 ground[MAX_GROUPS];
+    vec4 r0[MAX_GROUPS];
+    vec4 t[MAX_GROUPS];
+    vec4 t2[MAX_LAYERS * MAX_GROUPS];  // T^2 of layer l, group g at l * MAX_GROUPS + g
+    for (int g = 0; g < MAX_GROUPS; ++g) ground[g] = u_substrate[g];
     for (int layer = 0; layer < u_layer_count; ++layer) {
         float x = layer_thickness(layer);
         int n = u_sample_count[layer];
-        if (layer == 0) compose(u_table0, n, x, reflectance);
-        else if (layer == 1) compose(u_table1, n, x, reflectance);
-        else if (layer == 2) compose(u_table2, n, x, reflectance);
-        else compose(u_table3, n, x, reflectance);
+        if (layer == 0) look_up(u_table0, n, x, r0, t);
+        else if (layer == 1) look_up(u_table1, n, x, r0, t);
+        else if (layer == 2) look_up(u_table2, n, x, r0, t);
+        else look_up(u_table3, n, x, r0, t);
+        for (int g = 0; g < u_group_count; ++g) {
+            // Padding channels (r0 = t = rg = 0) and a lossless white over a white ground (denominator 0) stay finite.
+            vec4 denominator = max(vec4(1.0) - r0[g] * ground[g], vec4(1e-30));
+            ground[g] = r0[g] + t[g] * t[g] * ground[g] / denominator;
+            t2[layer * MAX_GROUPS + g] = t[g] * t[g];
+        }
     }
-    vec3 rgb = vec3(0.0);
-    for (int g = 0; g < u_group_count; ++g) {
-        for (int k = 0; k < 4; ++k) rgb += reflectance[g][k] * u_to_rgb[4 * g + k];
+    reflectance = to_rgb(ground);
+    // Attenuation of layer i: product of T^2 over the layers above it (the top layer: 1 in every channel).
+    vec4 above[MAX_GROUPS];
+    for (int g = 0; g < MAX_GROUPS; ++g) above[g] = vec4(1.0);
+    for (int layer = MAX_LAYERS - 1; layer >= 0; --layer) {
+        attenuation[layer] = vec3(0.0);
+        if (layer >= u_layer_count) continue;
+        attenuation[layer] = to_rgb(above);
+        for (int g = 0; g < u_group_count; ++g) above[g] *= t2[layer * MAX_GROUPS + g];
     }
-    float cos_theta = max(dot(normalize(v_normal), u_to_light), 0.0);
-    f_colour = vec4(rgb * u_light_radiance * cos_theta, 1.0);
+}
+
+float shadow_visibility(int light, vec3 position) {
+    if (u_light_shadow[light] == 0) return 1.0;
+    vec4 coordinates = u_shadow_matrix[light] * vec4(position, 1.0);
+    vec3 p = coordinates.xyz / coordinates.w;
+    vec2 texel;
+    if (light == 0) texel = 1.0 / vec2(textureSize(u_shadow0, 0));
+    else if (light == 1) texel = 1.0 / vec2(textureSize(u_shadow1, 0));
+    else if (light == 2) texel = 1.0 / vec2(textureSize(u_shadow2, 0));
+    else texel = 1.0 / vec2(textureSize(u_shadow3, 0));
+    float lit = 0.0;
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            vec3 tap = vec3(p.xy + vec2(dx, dy) * texel, p.z);
+            if (light == 0) lit += texture(u_shadow0, tap);
+            else if (light == 1) lit += texture(u_shadow1, tap);
+            else if (light == 2) lit += texture(u_shadow2, tap);
+            else lit += texture(u_shadow3, tap);
+        }
+    }
+    return lit / 9.0;
+}
+
+// Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of a layer, for unit N, L, V.
+float kelemen(int layer, vec3 n, vec3 l, vec3 v) {
+    vec3 h_sum = l + v;
+    float h_length2 = dot(h_sum, h_sum);  // = 2 (1 + L.V)
+    if (h_length2 < 1e-12) return 0.0;
+    vec3 h = h_sum * inversesqrt(h_length2);
+    float cos_a = dot(n, h);
+    if (cos_a <= 0.0) return 0.0;
+    float m2 = u_roughness[layer] * u_roughness[layer];
+    float cos2 = cos_a * cos_a;
+    float tan2 = (1.0 - cos2) / cos2;
+    float distribution = exp(-tan2 / m2) / (PI * m2 * cos2 * cos2);
+    float c = 1.0 - clamp(dot(h, l), 0.0, 1.0);
+    float fresnel = u_f0[layer] + (1.0 - u_f0[layer]) * c * c * c * c * c;
+    return distribution * fresnel / h_length2;
+}
+
+void main() {
+    vec3 reflectance;
+    vec3 attenuation[MAX_LAYERS];
+    stack_optics(reflectance, attenuation);
+    vec3 n = normalize(v_normal);
+    vec3 v = u_orthographic == 1 ? u_view_vector : normalize(u_view_vector - v_position);
+    vec3 colour = vec3(0.0);
+    for (int light = 0; light < u_light_count; ++light) {
+        vec3 l;
+        vec3 e = u_light_radiance[light];
+        if (u_light_is_point[light] == 1) {
+            vec3 to_light = u_light_vector[light] - v_position;
+            float d = length(to_light);
+            l = to_light / d;
+            e *= (u_light_reference[light] * u_light_reference[light]) / (d * d);
+        } else {
+            l = u_light_vector[light];
+        }
+        float cos_theta = dot(n, l);
+        if (cos_theta <= 0.0) continue;
+        vec3 specular = vec3(0.0);
+        for (int layer = 0; layer < u_layer_count; ++layer) {
+            if (u_specular_on[layer] == 1) specular += attenuation[layer] * kelemen(layer, n, l, v);
+        }
+        colour += e * shadow_visibility(light, v_position) * cos_theta * (reflectance + PI * specular);
+    }
+    f_colour = vec4(colour, 1.0);
 }
