@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime
 import sys
 from pathlib import Path
 
@@ -367,6 +368,34 @@ def _labels_arg(text: str) -> list[str]:
     return [label.strip() for label in text.split(",")]
 
 
+def _sheet_labels(frames: list[Path], n_rows: int, n_cols: int) -> tuple[list[str], list[str], str]:
+    """Default row and column labels and header of a sheet.
+
+    Frames that ``kmpipe render`` wrote (EXR with a ``product`` attribute) give "product · shade" per row, the
+    camera's azimuth relative to the product per column, and "scene · illuminant · today's date" across the top;
+    other frames give their file stems and no header.
+    """
+    from renderer.image_io import read_header
+
+    headers = []
+    for path in frames:
+        try:
+            headers.append(read_header(path) if path.suffix.lower() == ".exr" else {})
+        except OSError:
+            headers.append({})  # unreadable: make_sheet names it
+    if not all("product" in h and "camera_azimuth_deg" in h for h in headers):
+        return [frames[r * n_cols].stem for r in range(n_rows)], [p.stem for p in frames[:n_cols]], ""
+
+    def row_label(h: dict) -> str:
+        return h["product"] if h["shade"] in ("", h["product"]) else f"{h['product']} · {h['shade']}"
+
+    rows = [row_label(headers[r * n_cols]) for r in range(n_rows)]
+    columns = [f"{float(h['camera_azimuth_deg']):g}°" for h in headers[:n_cols]]
+    scenes = ", ".join(dict.fromkeys(str(h.get("scene", "")) for h in headers))
+    illuminants = ", ".join(dict.fromkeys(str(h.get("illuminant", "")) for h in headers))
+    return rows, columns, f"{scenes} · {illuminants} · {datetime.date.today().isoformat()}"
+
+
 def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
     from renderer.contact_sheet import FrameError, make_sheet, write_sheet
 
@@ -376,18 +405,20 @@ def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
     _refuse_overwriting_inputs(args.output, frames)
     n_cols = args.columns or min(len(frames), 4)
     n_rows = -(-len(frames) // n_cols)
-    columns = args.column_labels or [path.stem for path in frames[:n_cols]]
-    rows = args.row_labels or [frames[row * n_cols].stem for row in range(n_rows)]
+    for path in frames:
+        if not path.is_file():
+            raise InputError("does not exist" if not path.exists() else "is not a file", path=path)
+    default_rows, default_columns, default_header = _sheet_labels(frames, n_rows, n_cols)
+    columns = args.column_labels or default_columns
+    rows = args.row_labels or default_rows
     for option, labels, wanted in (("--column-labels", columns, n_cols), ("--row-labels", rows, n_rows)):
         if len(labels) != wanted:
             raise InputError(
                 f"gives {len(labels)} labels; {len(frames)} frames in {n_cols} columns need {wanted}", field=option
             )
-    for path in frames:
-        if not path.is_file():
-            raise InputError("does not exist" if not path.exists() else "is not a file", path=path)
+    header = default_header if args.header is None else args.header
     try:
-        sheet = make_sheet(frames, rows=rows, columns=columns, grid=(n_rows, n_cols), header=args.header or "")
+        sheet = make_sheet(frames, rows=rows, columns=columns, grid=(n_rows, n_cols), header=header)
     except FrameError as err:
         raise InputError(err.reason, path=err.path) from None
     write_sheet(sheet, args.output)
@@ -565,8 +596,9 @@ def build_parser() -> argparse.ArgumentParser:
         "sheet",
         help="lay rendered frames (EXR, PNG) out in a labelled contact sheet (PNG)",
         description="Frames fill the grid row-major; EXR frames are linear and sRGB-encoded, PNG frames are used "
-        "as they are. Labels default to file stems: of the first row's frames for the columns, of each row's "
-        "first frame for the rows.",
+        "as they are. Frames from kmpipe render label themselves: product and shade per row, camera angle per "
+        "column, scene, illuminant and date on top. Other frames' labels default to file stems: of the first "
+        "row's frames for the columns, of each row's first frame for the rows.",
     )
     sheet.add_argument("frames", nargs="+", type=Path, help="frames, EXR (linear) or PNG (sRGB)")
     sheet.add_argument("-o", "--output", type=Path, required=True, help="SHEET.png")
@@ -579,7 +611,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sheet.add_argument("--row-labels", type=_labels_arg, metavar="A,B,..", help="one label per row")
     sheet.add_argument("--column-labels", type=_labels_arg, metavar="X,Y,..", help="one label per column")
-    sheet.add_argument("--header", help="a line across the top, e.g. scene, illuminant and date")
+    sheet.add_argument("--header", help="a line across the top (default for kmpipe frames: scene, illuminant, date)")
     sheet.set_defaults(run=_cmd_sheet)
 
     render = commands.add_parser(

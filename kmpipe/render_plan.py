@@ -26,8 +26,9 @@ from kmpipe.optical_tables import (
     working_space,
 )
 
-#: Delta E 2000 target when the caller gives none.
-DEFAULT_TARGET_DE = 1.0
+#: Delta E 2000 target (worst case over the scene's stacks) when the caller gives none; about 1/2 of a just noticeable
+#: difference, so a studio can composite renders of one shade next to each other without seeing the mode.
+DEFAULT_TARGET_DE = 0.5
 #: Share of the target that thickness interpolation may use (the rest is left to the mode).
 INTERPOLATION_FRACTION = 0.25
 #: Largest thickness axis the planner will propose (2^8 + 1 samples).

@@ -89,6 +89,17 @@ def read_exr(path: str | Path) -> tuple[np.ndarray, dict[str, AttributeValue]]:
     return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), attributes
 
 
+def read_header(path: str | Path) -> dict[str, AttributeValue]:
+    """The header attributes of an image file, without reading its pixels."""
+    source = oiio.ImageInput.open(str(path))
+    if source is None:
+        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
+    try:
+        return {attribute.name: attribute.value for attribute in source.spec().extra_attribs}
+    finally:
+        source.close()
+
+
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
     """The sRGB transfer function (IEC 61966-2-1) of linear values, clipped to [0, 1] first; returns [0, 1]."""
     x = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)

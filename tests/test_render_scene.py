@@ -140,7 +140,8 @@ def test_exact_mode_renders_the_km_prediction_in_srgb(tmp_path, material_file, c
     R = km_reflectance(material.K, material.S, 0.02, 0.5)
     sd = colour.SpectralDistribution(dict(zip(material.wavelengths, R, strict=True)))
     illuminant = colour.SDS_ILLUMINANTS["D65"]
-    XYZ = colour.sd_to_XYZ(sd, illuminant=illuminant, method="Integration") / 100.0
+    with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
+        XYZ = colour.sd_to_XYZ(sd, illuminant=illuminant, method="Integration") / 100.0
     expected = colour.XYZ_to_RGB(XYZ, "sRGB", apply_cctf_encoding=False) * np.array(RADIANCE)
 
     pixels, header = read_exr(tmp_path / "out" / "frame_000.exr")
@@ -173,3 +174,117 @@ def test_bad_value_exits_2(tmp_path, material_file, capsys):
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert f"{scene_path}, line 13" in err and "field 'layer[1].thickness'" in err
+
+
+def test_frames_carry_product_shade_and_material_hashes(tmp_path, material_file, capsys):
+    import hashlib
+
+    scene_path = write_scene(tmp_path, material_file)
+    text = scene_path.read_text().replace(
+        'name = "F1 on a card"', 'name = "F1 on a card"\nproduct = "Velvet"\nshade = "Ivory 01"'
+    )
+    scene_path.write_text(text, encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    _, header = read_exr(tmp_path / "out" / "frame_000.exr")
+    assert header["product"] == "Velvet" and header["shade"] == "Ivory 01"
+    assert header["material_sha256"] == hashlib.sha256(material_file.read_bytes()).hexdigest()
+    assert header["turntable_deg"] == pytest.approx(0.0)
+
+
+def write_map(path: Path, values: np.ndarray) -> None:
+    import OpenImageIO as oiio
+
+    spec = oiio.ImageSpec(values.shape[1], values.shape[0], 1, oiio.UINT16)
+    out = oiio.ImageOutput.create(str(path))
+    codes = np.rint(values[..., None] * 65535).astype(np.uint16)  # (rows, columns, 1): OIIO misreads a 2-D array
+    assert out.open(str(path), spec) and out.write_image(codes) and out.close()
+
+
+def test_a_thickness_map_renders_each_side_at_its_thickness_in_exact_mode(tmp_path, material_file, capsys):
+    import colour
+
+    values = np.zeros((4, 8))
+    values[:, 4:] = 1.0  # left half at min, right half at max (column 0 is u = 0, the card's left edge)
+    write_map(tmp_path / "wedge.png", values)
+    scene_path = write_scene(tmp_path, material_file, mode_line='mode = "exact"')
+    text = scene_path.read_text().replace(
+        'thickness = "20 um"', 'thickness_map = { file = "wedge.png", min = "5 um", max = "40 um" }'
+    )
+    scene_path.write_text(text, encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    pixels, header = read_exr(tmp_path / "out" / "frame_000.exr")
+    assert header["thicknesses_mm"] == "0.005..0.04 (map)"
+    material = read_material(material_file)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    illuminant = colour.SDS_ILLUMINANTS["D65"]
+    for column, thickness in ((8, 0.005), (23, 0.04)):  # the card spans columns 6 .. 25; u = 0.14 and 0.87
+        R = km_reflectance(material.K, material.S, thickness, 0.5)
+        sd = colour.SpectralDistribution(dict(zip(material.wavelengths, R, strict=True)))
+        with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
+            XYZ = colour.sd_to_XYZ(sd, cmfs=cmfs, illuminant=illuminant, method="Integration") / 100.0
+        expected = colour.XYZ_to_RGB(XYZ, "sRGB", apply_cctf_encoding=False) * np.array(RADIANCE)
+        np.testing.assert_allclose(pixels[SIZE // 2, column], expected, rtol=2e-3)
+
+
+def test_a_missing_thickness_map_and_a_point_light_without_position_exit_2(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file)
+    text = scene_path.read_text().replace(
+        'thickness = "20 um"', 'thickness_map = { file = "nowhere.png", max = "9 um" }'
+    )
+    scene_path.write_text(text, encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "nowhere.png" in err and "layer[1]" in err and "line 13" in err
+    scene_path = write_scene(tmp_path, material_file, '\n[[light]]\nkind = "point"\nradiance = [1, 1, 1]\n')
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "point light has a position" in err and "light[2]" in err
+
+
+def test_the_plan_drops_shadow_maps_when_nothing_can_shadow_and_sizes_them_otherwise(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file)
+    assert "nothing can shadow anything -> none made" in plan_scene(load_scene(scene_path)).explain()
+    scene_path = write_scene(tmp_path, material_file, "\n[ground]\nreflectance = 0.3\n")
+    plan = plan_scene(load_scene(scene_path))
+    assert plan.shadow_map_size == 512  # 2 x 32 px, raised to the smallest map
+    assert "1 of 1 lights cast shadows" in plan.explain()
+    text = (
+        scene_path.read_text()
+        .replace('mesh = "card"', 'mesh = "compact"')
+        .replace("[[light]]", "[[light]]\nshadows = false")
+    )
+    scene_path.write_text(text, encoding="utf-8")
+    assert "no light casts shadows -> none made" in plan_scene(load_scene(scene_path)).explain()
+
+
+def test_tone_mapping_changes_the_png_not_the_exr(tmp_path, material_file, capsys):
+    plain = write_scene(tmp_path, material_file)
+    assert cli.main(["render", str(plain), "-o", str(tmp_path / "plain")]) == 0
+    mapped = (
+        write_scene(tmp_path / "mapped", material_file, '\n[output]\ntone_map = "reinhard"\nexposure_ev = 1.0\n')
+        if (tmp_path / "mapped").mkdir() is None
+        else None
+    )
+    assert cli.main(["render", str(mapped), "-o", str(tmp_path / "mapped_out")]) == 0
+    capsys.readouterr()
+    a, _ = read_exr(tmp_path / "plain" / "frame_000.exr")
+    b, header = read_exr(tmp_path / "mapped_out" / "frame_000.exr")
+    np.testing.assert_array_equal(a, b)
+    assert header["tone_map"].startswith("reinhard +1 EV")
+    assert np.any(read_png(tmp_path / "plain" / "frame_000.png") != read_png(tmp_path / "mapped_out" / "frame_000.png"))
+
+
+def test_a_sheet_of_rendered_frames_labels_itself_from_their_headers(tmp_path, material_file, capsys):
+    from kmpipe.cli import _sheet_labels
+
+    scene_path = write_scene(tmp_path, material_file, "\n[turntable]\nframes = 2\n")
+    scene_path.write_text(scene_path.read_text().replace("[scene]\n", '[scene]\nproduct = "Velvet"\nshade = "Ivory"\n'))
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    frames = [tmp_path / "out" / f"frame_{i:03d}.exr" for i in range(2)]
+    rows, columns, header = _sheet_labels(frames, 1, 2)
+    assert rows == ["Velvet · Ivory"] and columns == ["0°", "180°"]
+    assert header.startswith("F1 on a card · D65 · ")
+    assert cli.main(["sheet", *map(str, frames), "-o", str(tmp_path / "sheet.png")]) == 0
+    assert read_png(tmp_path / "sheet.png").shape[1] > 2 * SIZE
