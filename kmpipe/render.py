@@ -32,6 +32,8 @@ SHADOW_TEXELS_PER_PIXEL = 2
 SHADOW_MAP_SIZES = (512, 4096)
 #: Ground half-size in radii of the product's bounding sphere.
 GROUND_EXTENT = 4.0
+#: Share of the image height the product's bounding sphere fills when the scene gives no camera distance.
+FRAME_FILL = 0.8
 
 
 @dataclass(frozen=True)
@@ -197,12 +199,20 @@ def camera_for(scene: Scene):
     direction = np.array(
         [math.cos(elevation) * math.sin(azimuth), math.sin(elevation), math.cos(elevation) * math.cos(azimuth)]
     )
-    eye = tuple(centre + info.distance_mm * direction)
+    distance = info.distance_mm
+    if distance is None:  # the bounding sphere fills FRAME_FILL of the image height
+        half_angle = math.radians(info.fov_deg) / 2.0
+        distance = (
+            radius / math.sin(math.atan(FRAME_FILL * math.tan(half_angle)))
+            if info.projection == "perspective"
+            else 3.0 * radius
+        )
+    eye = tuple(centre + distance * direction)
     reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
-    near = max(info.distance_mm - 2.0 * reach, 1e-3 * info.distance_mm)
-    far = info.distance_mm + 2.0 * reach
+    near = max(distance - 2.0 * reach, 1e-3 * distance)
+    far = distance + 2.0 * reach
     if info.projection == "orthographic":
-        return OrthographicCamera(1.1 * radius, eye=eye, target=tuple(centre), near=near, far=far)
+        return OrthographicCamera(radius / FRAME_FILL, eye=eye, target=tuple(centre), near=near, far=far)
     return PerspectiveCamera(info.fov_deg, eye=eye, target=tuple(centre), near=near, far=far)
 
 

@@ -5,7 +5,8 @@ a uniform thickness or a thickness map, and optionally a specular lobe), the sub
 directional or point lights, an optional ground under the product, a camera and, optionally, a turntable. Paths are
 relative to the scene file. Every problem is an :class:`~kmpipe.errors.InputError` naming the file, line and field.
 
-Camera: world +y is up. The camera looks at the centre of the mesh's bounding box from ``distance_mm`` away, from
+Camera: world +y is up. The camera looks at the centre of the mesh's bounding box from ``distance_mm`` away (by
+default just far enough for the mesh's bounding sphere to fill 80 % of the image height), from
 the direction given by ``azimuth_deg`` (about +y, 0 is +z, 90 is +x) and ``elevation_deg`` (above the horizontal
 plane). The built-in card faces +z, so azimuth 0 and elevation 0 see it head-on; the lipstick and compact stand
 upright (their +z axis turned to world +y). A turntable turns the product about the vertical axis through its
@@ -153,7 +154,7 @@ class OutputInfo(_Strict):
 class CameraInfo(_Strict):
     azimuth_deg: float = 0.0
     elevation_deg: float = Field(default=0.0, gt=-90.0, lt=90.0)
-    distance_mm: float = Field(default=200.0, gt=0.0)
+    distance_mm: float | None = Field(default=None, gt=0.0)
     projection: Literal["perspective", "orthographic"] = "perspective"
     fov_deg: float = Field(default=30.0, gt=0.0, lt=180.0)
 

@@ -1,4 +1,4 @@
-"""The README's demo command, end to end: emulated CS-2000 session, fits, validation reports."""
+"""The README's demo command, end to end: emulated CS-2000 session, fits, validation reports, renders, a sheet."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_the_demo_measures_fits_and_validates(tmp_path):
+def test_the_demo_measures_fits_validates_and_renders(tmp_path):
     out = tmp_path / "demo"
     done = subprocess.run(
         ["bash", str(ROOT / "scripts" / "demo")],
@@ -30,3 +30,18 @@ def test_the_demo_measures_fits_and_validates(tmp_path):
     summary = json.loads((out / "reports" / "summary.json").read_text(encoding="utf-8"))
     assert {entry["sample"]: entry["verdict"] for entry in summary}["F1"] == "pass"
     assert (out / "reports" / "index.html").exists()
+    # Rendering: 8 turntable frames per product, their headers, and a sheet of 3 rows x 4 columns.
+    from renderer.contact_sheet import sheet_layout
+    from renderer.image_io import read_header, read_png
+
+    for scene, shade in (("F1_compact", "F1"), ("B1_compact", "B1"), ("L1_lipstick", "L1")):
+        frames = sorted((out / "render" / scene).glob("frame_*.exr"))
+        assert len(frames) == 8 and len(list((out / "render" / scene).glob("frame_*.png"))) == 8
+        header = read_header(frames[2])
+        assert header["shade"] == shade and header["camera_azimuth_deg"] == 90.0
+    layout = sheet_layout(
+        ["Foundation compact · F1", "Blush compact · B1", "Lipstick · L1"],
+        ["0°", "90°", "180°", "270°"],
+        header="Demo line · D65 · date",  # the layout depends on whether there is a header, not on its text
+    )
+    assert read_png(out / "sheet.png").shape == (layout.height, layout.width, 3)
