@@ -496,6 +496,7 @@ def _set_specular(program: Program, lobes_bottom_up: Sequence[Specular | None]) 
     for index, lobe in enumerate(lobes_bottom_up):
         if lobe is not None:
             on[index], roughness[index], f0[index] = 1, lobe.roughness, lobe.f0
+    GL.glUniform1i(_location(program, "u_any_specular"), int(on.any()))
     GL.glUniform1iv(_location(program, "u_specular_on"), MAX_LAYERS, on)
     GL.glUniform1fv(_location(program, "u_roughness"), MAX_LAYERS, roughness.astype(np.float32))
     GL.glUniform1fv(_location(program, "u_f0"), MAX_LAYERS, f0.astype(np.float32))

@@ -288,3 +288,27 @@ def test_a_sheet_of_rendered_frames_labels_itself_from_their_headers(tmp_path, m
     assert header.startswith("F1 on a card · D65 · ")
     assert cli.main(["sheet", *map(str, frames), "-o", str(tmp_path / "sheet.png")]) == 0
     assert read_png(tmp_path / "sheet.png").shape[1] > 2 * SIZE
+
+
+def test_rendered_rgb_and_bands_stay_within_their_planned_delta_e_of_rendered_exact(tmp_path, material_file, capsys):
+    """The planner's Delta E of each mode (measured on tables) holds for the rendered pixels against exact."""
+    import colour
+
+    from kmpipe.optical_tables import working_space
+
+    centres = {}
+    for mode in ("rgb", "bands:6", "bands:9", "exact"):
+        folder = tmp_path / mode.replace(":", "")
+        folder.mkdir()
+        scene_path = write_scene(folder, material_file, mode_line=f'mode = "{mode}"')
+        assert cli.main(["render", str(scene_path), "-o", str(folder / "out")]) == 0
+        pixels, _ = read_exr(folder / "out" / "frame_000.exr")
+        centres[mode] = (pixels[SIZE // 2, SIZE // 2] / np.array(RADIANCE), plan_scene(load_scene(scene_path)))
+    capsys.readouterr()
+    space = working_space(read_material(material_file).wavelengths, "D65")
+    exact = space.to_Lab(centres["exact"][0])
+    for mode in ("rgb", "bands:6", "bands:9"):
+        rgb, plan = centres[mode]
+        planned = plan.tables.candidates[-1].max_dE
+        measured = float(colour.delta_E(space.to_Lab(rgb), exact, method="CIE 2000"))
+        assert measured == pytest.approx(planned, abs=0.01)  # float32 pixels: a hundredth of a unit

@@ -59,6 +59,7 @@ uniform vec3 u_to_rgb[MAX_CHANNELS];         // row c: linear RGB contributed by
 uniform int u_precomposed;                   // 1: reflectance and attenuation from u_composite
 uniform sampler2DArray u_composite;          // precomposed layers (layout above)
 
+uniform int u_any_specular;                  // 1: some layer has a lobe (else attenuation is not needed)
 uniform int u_specular_on[MAX_LAYERS];       // 1: the layer has a lobe
 uniform float u_roughness[MAX_LAYERS];       // Beckmann m (RMS microfacet slope), > 0
 uniform float u_f0[MAX_LAYERS];              // Fresnel reflectance at normal incidence
@@ -88,86 +89,78 @@ float layer_thickness(int layer) {
     return texture(u_map3, v_uv).r;
 }
 
-// R0 and T of one layer, whose table is `table` with `n` samples, at thickness x (groups 0 .. G-1).
-void look_up(sampler2D table, int n, float x, out vec4 r0[MAX_GROUPS], out vec4 t[MAX_GROUPS]) {
-    int rows = 2 * u_group_count;
-    // Segment [j0, j1] holding x and the weight w of sample j1; clamped at both ends.
-    int j0 = 0;
-    int j1 = 0;
-    float w = 0.0;
-    if (n > 1) {
-        float first = texelFetch(table, ivec2(0, rows), 0).r;
-        float last = texelFetch(table, ivec2(n - 1, rows), 0).r;
-        if (x >= last) {
-            j0 = n - 1;
-            j1 = n - 1;
-        } else if (x > first) {
-            j0 = 0;
-            for (int j = 1; j < n - 1; ++j) {
-                if (texelFetch(table, ivec2(j, rows), 0).r <= x) j0 = j;
-            }
-            j1 = j0 + 1;
-            float x0 = texelFetch(table, ivec2(j0, rows), 0).r;
-            float x1 = texelFetch(table, ivec2(j1, rows), 0).r;
-            w = (x - x0) / (x1 - x0);
-        }
-    }
-    for (int g = 0; g < MAX_GROUPS; ++g) {
-        r0[g] = vec4(0.0);
-        t[g] = vec4(0.0);
-        if (g >= u_group_count) continue;
-        r0[g] = mix(texelFetch(table, ivec2(j0, g), 0), texelFetch(table, ivec2(j1, g), 0), w);
-        int gt = g + u_group_count;
-        t[g] = mix(texelFetch(table, ivec2(j0, gt), 0), texelFetch(table, ivec2(j1, gt), 0), w);
-    }
+vec4 fetch(int layer, ivec2 texel) {
+    if (layer == 0) return texelFetch(u_table0, texel, 0);
+    if (layer == 1) return texelFetch(u_table1, texel, 0);
+    if (layer == 2) return texelFetch(u_table2, texel, 0);
+    return texelFetch(u_table3, texel, 0);
 }
 
-vec3 to_rgb(vec4 channels[MAX_GROUPS]) {
-    vec3 rgb = vec3(0.0);
-    for (int g = 0; g < u_group_count; ++g) {
-        for (int k = 0; k < 4; ++k) rgb += channels[g][k] * u_to_rgb[4 * g + k];
+// Where thickness x falls in a layer's table of n samples: the segment [j0, j0 + 1] (binary search over the
+// thickness row) and the weight w of sample j0 + 1; clamped at both ends (w = 0 or 1 on the end segment).
+void locate(int layer, int n, float x, out int j0, out float w) {
+    j0 = 0;
+    w = 0.0;
+    if (n < 2) return;
+    int row = 2 * u_group_count;
+    int lo = 0;
+    int hi = n - 1;
+    while (hi - lo > 1) {
+        int mid = (lo + hi) / 2;
+        if (fetch(layer, ivec2(mid, row)).r <= x) lo = mid;
+        else hi = mid;
     }
-    return rgb;
+    float x0 = fetch(layer, ivec2(lo, row)).r;
+    float x1 = fetch(layer, ivec2(hi, row)).r;
+    j0 = lo;
+    w = clamp((x - x0) / (x1 - x0), 0.0, 1.0);
 }
 
-// The stack's linear RGB reflectance and the RGB specular attenuation of each layer (bottom-up index).
+vec3 group_to_rgb(vec4 channels, int g) {
+    return channels.x * u_to_rgb[4 * g] + channels.y * u_to_rgb[4 * g + 1] + channels.z * u_to_rgb[4 * g + 2]
+         + channels.w * u_to_rgb[4 * g + 3];
+}
+
+// The stack's linear RGB reflectance and the RGB specular attenuation of each layer (bottom-up index), composed one
+// channel group at a time: every layer's R0 and T for the group, bottom-up, then the group's share of the RGB.
 void stack_optics(out vec3 reflectance, out vec3 attenuation[MAX_LAYERS]) {
+    for (int layer = 0; layer < MAX_LAYERS; ++layer) attenuation[layer] = vec3(0.0);
     if (u_precomposed == 1) {
         reflectance = texture(u_composite, vec3(v_uv, 0.0)).rgb;
-        for (int layer = 0; layer < MAX_LAYERS; ++layer) {
-            attenuation[layer] = layer < u_layer_count ? texture(u_composite, vec3(v_uv, float(layer + 1))).rgb
-                                                       : vec3(0.0);
+        for (int layer = 0; layer < u_layer_count; ++layer) {
+            attenuation[layer] = texture(u_composite, vec3(v_uv, float(layer + 1))).rgb;
         }
         return;
     }
-    vec4 ground[MAX_GROUPS];
-    vec4 r0[MAX_GROUPS];
-    vec4 t[MAX_GROUPS];
-    vec4 t2[MAX_LAYERS * MAX_GROUPS];  // T^2 of layer l, group g at l * MAX_GROUPS + g
-    for (int g = 0; g < MAX_GROUPS; ++g) ground[g] = u_substrate[g];
+    int j0[MAX_LAYERS];
+    float w[MAX_LAYERS];
     for (int layer = 0; layer < u_layer_count; ++layer) {
-        float x = layer_thickness(layer);
-        int n = u_sample_count[layer];
-        if (layer == 0) look_up(u_table0, n, x, r0, t);
-        else if (layer == 1) look_up(u_table1, n, x, r0, t);
-        else if (layer == 2) look_up(u_table2, n, x, r0, t);
-        else look_up(u_table3, n, x, r0, t);
-        for (int g = 0; g < u_group_count; ++g) {
-            // Padding channels (r0 = t = rg = 0) and a lossless white over a white ground (denominator 0) stay finite.
-            vec4 denominator = max(vec4(1.0) - r0[g] * ground[g], vec4(1e-30));
-            ground[g] = r0[g] + t[g] * t[g] * ground[g] / denominator;
-            t2[layer * MAX_GROUPS + g] = t[g] * t[g];
-        }
+        locate(layer, u_sample_count[layer], layer_thickness(layer), j0[layer], w[layer]);
     }
-    reflectance = to_rgb(ground);
-    // Attenuation of layer i: product of T^2 over the layers above it (the top layer: 1 in every channel).
-    vec4 above[MAX_GROUPS];
-    for (int g = 0; g < MAX_GROUPS; ++g) above[g] = vec4(1.0);
-    for (int layer = MAX_LAYERS - 1; layer >= 0; --layer) {
-        attenuation[layer] = vec3(0.0);
-        if (layer >= u_layer_count) continue;
-        attenuation[layer] = to_rgb(above);
-        for (int g = 0; g < u_group_count; ++g) above[g] *= t2[layer * MAX_GROUPS + g];
+    reflectance = vec3(0.0);
+    for (int g = 0; g < u_group_count; ++g) {
+        vec4 ground = u_substrate[g];
+        vec4 t2[MAX_LAYERS];
+        for (int layer = 0; layer < u_layer_count; ++layer) {
+            int n = u_sample_count[layer];
+            int j1 = min(j0[layer] + 1, n - 1);
+            vec4 r0 = mix(fetch(layer, ivec2(j0[layer], g)), fetch(layer, ivec2(j1, g)), w[layer]);
+            int gt = g + u_group_count;
+            vec4 t = mix(fetch(layer, ivec2(j0[layer], gt)), fetch(layer, ivec2(j1, gt)), w[layer]);
+            // Padding channels (r0 = t = rg = 0) and a lossless white over a white ground (denominator 0) stay finite.
+            vec4 denominator = max(vec4(1.0) - r0 * ground, vec4(1e-30));
+            ground = r0 + t * t * ground / denominator;
+            t2[layer] = t * t;
+        }
+        reflectance += group_to_rgb(ground, g);
+        if (u_any_specular == 1) {
+            // Attenuation of layer i: product of T^2 over the layers above it (the top layer: 1 in every channel).
+            vec4 above = vec4(1.0);
+            for (int layer = u_layer_count - 1; layer >= 0; --layer) {
+                attenuation[layer] += group_to_rgb(above, g);
+                above *= t2[layer];
+            }
+        }
     }
 }
 
