@@ -30,8 +30,11 @@ _LENGTH_UNITS_MM = {
 _LENGTH = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµμ]+)\s*$")
 
 
-def parse_thickness_mm(text: str) -> float:
-    """'30 um', '0.03 mm', '30000 nm' -> thickness in mm (> 0). Raises ValueError with what was expected."""
+def parse_thickness_mm(text: str, *, allow_zero: bool = False) -> float:
+    """'30 um', '0.03 mm', '30000 nm' -> thickness in mm (> 0, or >= 0 with ``allow_zero``).
+
+    Raises ValueError with what was expected.
+    """
     match = _LENGTH.match(str(text))
     if not match or match.group(2) not in _LENGTH_UNITS_MM:
         raise ValueError(
@@ -39,8 +42,8 @@ def parse_thickness_mm(text: str) -> float:
         )
     # Decimal arithmetic, so that '25000 nm', '25 um' and '0.025 mm' give the same float (repeats group by it).
     value = float(Decimal(match.group(1)) * _LENGTH_UNITS_MM[match.group(2)])
-    if not (value > 0.0 and math.isfinite(value)):
-        raise ValueError(f"thickness must be > 0, got {text!r}")
+    if not ((value >= 0.0 if allow_zero else value > 0.0) and math.isfinite(value)):
+        raise ValueError(f"thickness must be {'>= 0' if allow_zero else '> 0'}, got {text!r}")
     return value
 
 
@@ -49,8 +52,15 @@ def _checked_thickness(value: str) -> str:
     return value
 
 
+def _checked_thickness_or_zero(value: str) -> str:
+    parse_thickness_mm(value, allow_zero=True)
+    return value
+
+
 #: A thickness field as people write it ("30 um", "0.03 mm"), checked on reading; every TOML format uses it.
 Thickness = Annotated[str, AfterValidator(_checked_thickness)]
+#: The same, where no film at all ("0 um") makes sense: render scenes.
+ThicknessOrZero = Annotated[str, AfterValidator(_checked_thickness_or_zero)]
 
 
 def parse_grid(text: str) -> tuple[float, float, float]:

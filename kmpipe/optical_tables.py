@@ -302,12 +302,13 @@ def exact_rgb(materials: Sequence[FilmCoefficients], thicknesses, substrate, spa
 
 def exact_stack(
     materials: Sequence[FilmCoefficients], thicknesses, substrate, space: WorkingSpace
-) -> tuple[np.ndarray, np.ndarray]:
-    """A stack (top first) composed per wavelength, in linear working-space RGB: reflectance and lobe attenuation.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A stack (top first) composed per wavelength, in linear working-space RGB.
 
-    Returns ``(R @ W, A @ W)``: the reflectance of the films over the substrate, shape (..., 3), and for each film
-    i the spectral attenuation of its specular lobe by the films above it, ``A_i = prod_{j < i} T_j^2`` (1 for the
-    top film), as the RGB of white light so attenuated, shape (n_films, ..., 3). Thicknesses (mm) broadcast together.
+    Returns ``(R @ W, R_black @ W, A @ W)``: the reflectance of the films over the substrate and over a black one,
+    shape (..., 3), and the spectral attenuation of a specular lobe by the films above it, for each film i
+    ``A_i = prod_{j < i} T_j^2`` (1 for the top film) and last for the substrate (all films), as the RGB of white
+    light so attenuated, shape (n_films + 1, ..., 3). Thicknesses (mm) broadcast together.
     """
     films = [
         film_reflectance_transmittance(m.K, m.S, np.asarray(X, dtype=np.float64)[..., None])
@@ -315,8 +316,9 @@ def exact_stack(
     ]
     R0 = np.stack(np.broadcast_arrays(*(r for r, _ in films)))
     T = np.stack(np.broadcast_arrays(*(t for _, t in films)))
-    above = np.concatenate([np.ones_like(T[:1]), np.cumprod(T[:-1] ** 2, axis=0)])
-    return stack_over_substrate(R0, T, substrate) @ space.matrix, above @ space.matrix
+    above = np.concatenate([np.ones_like(T[:1]), np.cumprod(T**2, axis=0)])
+    W = space.matrix
+    return stack_over_substrate(R0, T, substrate) @ W, stack_over_substrate(R0, T, 0.0) @ W, above @ W
 
 
 def mode_error(

@@ -147,8 +147,9 @@ def _stack_input(plan: ScenePlan, scene: Scene):
     return ChannelStack(layer_tables, list(scene.thicknesses_mm), np.clip(substrate_channels, 0.0, 1.0), to_rgb)
 
 
-def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact mode: reflectance (3,) and attenuation (n, 3), or both over the grid of the thickness maps.
+def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact mode: reflectance and over-black reflectance (3,), attenuation (n + 1, 3), or all over the grid of the
+    thickness maps (see :func:`kmpipe.optical_tables.exact_stack`).
 
     Maps of other sizes than the first are resampled to its grid (bilinear). Only distinct thickness combinations
     are composed, in chunks, so a large map of few levels costs little.
@@ -158,8 +159,7 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
     space = working_space(scene.wavelengths, scene.info.scene.illuminant)
     maps = [np.asarray(x, dtype=float) for x in scene.thicknesses_mm if np.ndim(x) == 2]
     if not maps:
-        reflectance, attenuation = exact_stack(scene.materials, list(scene.thicknesses_mm), substrate, space)
-        return reflectance, attenuation
+        return exact_stack(scene.materials, list(scene.thicknesses_mm), substrate, space)
     rows, columns = maps[0].shape
     grids = []
     for x in scene.thicknesses_mm:
@@ -172,14 +172,20 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
             grids.append(value)
     combinations, inverse = np.unique(np.stack([g.ravel() for g in grids], axis=1), axis=0, return_inverse=True)
     reflectance = np.empty((len(combinations), 3))
-    attenuation = np.empty((len(grids), len(combinations), 3))
+    over_black = np.empty((len(combinations), 3))
+    attenuation = np.empty((len(grids) + 1, len(combinations), 3))
     chunk = 16384
     for start in range(0, len(combinations), chunk):
-        part = combinations[start : start + chunk]
-        r, a = exact_stack(scene.materials, list(part.T), substrate, space)
-        reflectance[start : start + chunk], attenuation[:, start : start + chunk] = r, a
+        part = slice(start, start + chunk)
+        reflectance[part], over_black[part], attenuation[:, part] = exact_stack(
+            scene.materials, list(combinations[part].T), substrate, space
+        )
     inverse = inverse.ravel()
-    return reflectance[inverse].reshape(rows, columns, 3), attenuation[:, inverse].reshape(len(grids), rows, columns, 3)
+    return (
+        reflectance[inverse].reshape(rows, columns, 3),
+        over_black[inverse].reshape(rows, columns, 3),
+        attenuation[:, inverse].reshape(len(grids) + 1, rows, columns, 3),
+    )
 
 
 def _bounds(scene: Scene) -> tuple[np.ndarray, float, float]:

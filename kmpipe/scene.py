@@ -27,7 +27,14 @@ import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
-from kmpipe.manifest import Thickness, first_validation_error, format_field, parse_thickness_mm, read_toml, toml_line
+from kmpipe.manifest import (
+    ThicknessOrZero,
+    first_validation_error,
+    format_field,
+    parse_thickness_mm,
+    read_toml,
+    toml_line,
+)
 from kmpipe.material import Material, read_material
 from kmpipe.optical_tables import parse_mode
 
@@ -99,8 +106,8 @@ class ThicknessMapInfo(_Strict):
 
     file: str = Field(min_length=1)
     channel: str = "R"
-    min: Thickness = "0 um"
-    max: Thickness
+    min: ThicknessOrZero = "0 um"
+    max: ThicknessOrZero
 
 
 class SpecularInfo(_Strict):
@@ -110,7 +117,7 @@ class SpecularInfo(_Strict):
 
 class LayerInfo(_Strict):
     material: str = Field(min_length=1)
-    thickness: Thickness | None = None
+    thickness: ThicknessOrZero | None = None
     thickness_map: ThicknessMapInfo | None = None
     specular: SpecularInfo | None = None
 
@@ -281,7 +288,7 @@ def load_scene(path: str | Path) -> Scene:
         materials.append(material)
         hashes.append(hashlib.sha256(material_path.read_bytes()).hexdigest())
         if layer.thickness is not None:
-            thicknesses.append(parse_thickness_mm(layer.thickness))
+            thicknesses.append(parse_thickness_mm(layer.thickness, allow_zero=True))
         else:
             thicknesses.append(_thickness_map(layer.thickness_map, base, path, text, i))
 
@@ -311,7 +318,7 @@ def _thickness_map(info: ThicknessMapInfo, base: Path, path: Path, text: str, in
         raise InputError(f"cannot read the thickness map: {err}", **where) from None
     if not (np.all(np.isfinite(value)) and value.min() >= 0.0 and value.max() <= 1.0):
         raise InputError(f"{image_path}: thickness map values must lie in [0, 1] (min maps to min, 1 to max)", **where)
-    lo, hi = parse_thickness_mm(info.min), parse_thickness_mm(info.max)
+    lo, hi = parse_thickness_mm(info.min, allow_zero=True), parse_thickness_mm(info.max, allow_zero=True)
     if not hi > lo:
         raise InputError(f"thickness_map.max ({info.max}) must exceed thickness_map.min ({info.min})", **where)
     return lo + value * (hi - lo)

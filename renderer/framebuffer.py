@@ -1,4 +1,4 @@
-"""A float framebuffer object: an RGBA32F colour texture and a 24-bit depth attachment."""
+"""A float framebuffer object: one or more RGBA32F colour textures and a 24-bit depth attachment."""
 
 from __future__ import annotations
 
@@ -8,29 +8,41 @@ from renderer.context import GL
 
 
 class Framebuffer:
-    """An offscreen render target of ``width`` x ``height`` pixels holding linear float RGBA.
+    """An offscreen render target of ``width`` x ``height`` pixels holding linear float RGBA in ``targets`` colour
+    attachments (fragment outputs at locations 0 .. targets - 1), sampled linearly and clamped at the edges.
 
     Use as a context manager (or call :meth:`release`) to free the GL objects. The current context must stay the
     same from creation to release.
     """
 
-    def __init__(self, width: int, height: int) -> None:
-        """Create the colour texture, depth renderbuffer and FBO; sizes in pixels."""
+    def __init__(self, width: int, height: int, targets: int = 1) -> None:
+        """Create the colour textures, depth renderbuffer and FBO; sizes in pixels."""
         self.width = width
         self.height = height
-        self.colour = GL.glGenTextures(1)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, self.colour)
-        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, width, height, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_NEAREST)
-        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_NEAREST)
+        self.colours = [int(t) for t in np.atleast_1d(GL.glGenTextures(targets))]
+        for colour in self.colours:
+            GL.glBindTexture(GL.GL_TEXTURE_2D, colour)
+            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, width, height, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
+            for parameter, value in (
+                (GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR),
+                (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+                (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE),
+                (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
+            ):
+                GL.glTexParameteri(GL.GL_TEXTURE_2D, parameter, value)
         GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        self.colour = self.colours[0]
         self.depth = GL.glGenRenderbuffers(1)
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self.depth)
         GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT24, width, height)
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, 0)
         self.fbo = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
-        GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_TEXTURE_2D, self.colour, 0)
+        for index, colour in enumerate(self.colours):
+            GL.glFramebufferTexture2D(
+                GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + index, GL.GL_TEXTURE_2D, colour, 0
+            )
+        GL.glDrawBuffers(targets, [GL.GL_COLOR_ATTACHMENT0 + index for index in range(targets)])
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self.depth)
         status = GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
@@ -44,18 +56,19 @@ class Framebuffer:
         GL.glViewport(0, 0, self.width, self.height)
 
     def clear(self, rgba: tuple[float, float, float, float]) -> None:
-        """Bind, fill the colour target with linear ``rgba`` (any float, unclamped) and the depth with 1 (far)."""
+        """Bind, fill every colour target with linear ``rgba`` (any float, unclamped) and the depth with 1 (far)."""
         self.bind()
         GL.glClearColor(*rgba)
         GL.glClearDepth(1.0)
         GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
 
-    def read_rgba(self) -> np.ndarray:
-        """The colour target as a float32 array of shape (height, width, 4), top row first.
+    def read_rgba(self, target: int = 0) -> np.ndarray:
+        """Colour target ``target`` as a float32 array of shape (height, width, 4), top row first.
 
         GL stores rows bottom-up; the rows are flipped so that row 0 is the top of the image.
         """
         self.bind()
+        GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0 + target)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 4)
         data = GL.glReadPixels(0, 0, self.width, self.height, GL.GL_RGBA, GL.GL_FLOAT)
         pixels = np.asarray(data, dtype=np.float32).reshape(self.height, self.width, 4)
@@ -66,7 +79,7 @@ class Framebuffer:
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
         GL.glDeleteFramebuffers(1, [self.fbo])
         GL.glDeleteRenderbuffers(1, [self.depth])
-        GL.glDeleteTextures(1, [self.colour])
+        GL.glDeleteTextures(len(self.colours), self.colours)
 
     def __enter__(self) -> Framebuffer:
         return self

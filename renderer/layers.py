@@ -193,17 +193,21 @@ class Precomposed:
     reflectance
         The stack's reflectance over its substrate, linear RGB: shape (3,) (uniform) or (rows, columns, 3) over uv
         (row 0 at v = 1), bilinearly filtered.
+    over_black
+        The stack's reflectance over a black substrate (what the films reflect by themselves), same shape.
     attenuation
-        Top first, one per film: the RGB attenuation ``A_i`` of the film's specular lobe by the films above it (1 for
-        the top film), shape (n_layers, 3) or (n_layers, rows, columns, 3) on the grid of ``reflectance``.
+        One per film, top first, then one for the substrate: the RGB attenuation ``A`` of a specular lobe by the
+        films above it (1 for the top film; all films for the substrate), shape (n_layers + 1, 3) or
+        (n_layers + 1, rows, columns, 3) on the grid of ``reflectance``.
     """
 
     reflectance: np.ndarray
+    over_black: np.ndarray
     attenuation: np.ndarray
 
     @property
     def n_layers(self) -> int:
-        return len(self.attenuation)
+        return len(self.attenuation) - 1
 
 
 @dataclass(frozen=True)
@@ -271,23 +275,28 @@ def _channel_uniforms(stack: ChannelStack) -> dict:
 
 
 def _composite_texels(stack: Precomposed) -> np.ndarray:
-    """Texels (1 + n_layers, rows, columns, 4) of a precomposed stack, bottom-up layers, row 0 at v = 0."""
-    reflectance = np.asarray(stack.reflectance, dtype=float)
+    """Texels (3 + n_layers, rows, columns, 4) of a precomposed stack, layout of km_layers.frag; row 0 at v = 0."""
+    planes = [np.asarray(stack.reflectance, dtype=float), np.asarray(stack.over_black, dtype=float)]
     attenuation = np.asarray(stack.attenuation, dtype=float)
     if not 1 <= stack.n_layers <= MAX_LAYERS:
         raise ValueError(f"a precomposed stack needs 1 to {MAX_LAYERS} layers, got {stack.n_layers}")
-    if reflectance.shape == (3,):
-        reflectance = reflectance.reshape(1, 1, 3)
-        attenuation = attenuation.reshape(-1, 1, 1, 3) if attenuation.shape == (stack.n_layers, 3) else attenuation
-    if reflectance.ndim != 3 or reflectance.shape[2] != 3 or attenuation.shape != (stack.n_layers, *reflectance.shape):
+    grid = planes[0].shape[:-1] if planes[0].ndim == 3 else ()
+    if (
+        planes[0].shape not in ((3,), (*grid, 3))
+        or planes[0].ndim not in (1, 3)
+        or planes[1].shape != planes[0].shape
+        or attenuation.shape != (stack.n_layers + 1, *planes[0].shape)
+    ):
         raise ValueError(
-            "a precomposed stack needs reflectance (3,) with attenuation (n_layers, 3), or reflectance "
-            f"(rows, columns, 3) with attenuation (n_layers, rows, columns, 3); got {reflectance.shape} and "
-            f"{attenuation.shape}"
+            "a precomposed stack needs reflectance and over_black (3,) with attenuation (n_layers + 1, 3), or "
+            "(rows, columns, 3) with attenuation (n_layers + 1, rows, columns, 3); got "
+            f"{planes[0].shape}, {planes[1].shape} and {attenuation.shape}"
         )
-    if not (np.all(np.isfinite(reflectance)) and np.all(np.isfinite(attenuation))):
+    # km_layers.frag: over the substrate, over black, the substrate's attenuation, then the films bottom-up.
+    layers = np.stack([*planes, attenuation[-1], *attenuation[-2::-1]])
+    if not np.all(np.isfinite(layers)):
         raise ValueError("a precomposed stack must be finite")
-    layers = np.concatenate([reflectance[np.newaxis], attenuation[::-1]])  # attenuation bottom-up
+    layers = layers.reshape(len(layers), *(grid or (1, 1)), 3)
     texels = np.zeros((*layers.shape[:3], 4), dtype=np.float32)
     texels[..., :3] = layers[:, ::-1]  # row 0 of an image is the top (v = 1); texture row 0 is v = 0
     return texels
@@ -337,6 +346,7 @@ def render_layers(
     height: int,
     *,
     specular: Sequence[Specular | None] = (),
+    substrate_specular: Specular | None = None,
     model: np.ndarray | None = None,
     props: Sequence[Prop] = (),
     shadow_map_size: int = 1024,
@@ -360,6 +370,8 @@ def render_layers(
         Image size in pixels.
     specular
         Top first, one per film (None: no lobe), or empty for no lobes at all.
+    substrate_specular
+        A lobe of the substrate's own surface (e.g. skin), seen through every film.
     model
         Object -> world matrix (4, 4) of ``mesh``; identity if omitted.
     props
@@ -372,83 +384,154 @@ def render_layers(
     np.ndarray
         Linear RGB, float32, shape (height, width, 3), top row first.
     """
-    _check_lights(lights)
-    specular = list(specular) or [None] * stack.n_layers
-    if len(specular) != stack.n_layers:
-        raise ValueError(f"one specular entry per layer is needed: {stack.n_layers} layers, {len(specular)} entries")
-    if isinstance(stack, ChannelStack):
-        channel = _channel_uniforms(stack)
-        composite_texels = None
-    else:
-        channel = None
-        composite_texels = _composite_texels(stack)
-    model = np.eye(4) if model is None else np.asarray(model, dtype=float)
-    draws = [(mesh, model)] + [(p.mesh, np.eye(4) if p.model is None else np.asarray(p.model, float)) for p in props]
-    for prop in props:
-        albedo = np.asarray(prop.albedo, dtype=float)
-        if albedo.shape != (3,) or not (np.all(np.isfinite(albedo)) and 0.0 <= albedo.min() <= albedo.max() <= 1.0):
-            raise ValueError(f"a prop's albedo must be linear RGB in [0, 1], got {prop.albedo}")
-    view_projection = camera.projection_matrix(width / height) @ camera.view_matrix()
-    context.make_current(width, height)
-    program = _layers_program()
-    textures: list[int] = []
-    shadow_maps: list[ShadowMap] = []
-    gpu_meshes: list[GpuMesh] = []
-    try:
-        gpu_meshes = [GpuMesh(m) for m, _ in draws]
-        centre, radius = _world_bounds(draws)
-        shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
-        casts = np.zeros(MAX_LIGHTS, dtype=np.int32)
-        for index, light in enumerate(lights):
-            if light.cast_shadows:
-                shadow_maps.append(ShadowMap(shadow_map_size))
-                light_matrix = light_view_projection(light, centre, radius)
-                shadow_maps[-1].render(list(zip(gpu_meshes, [m for _, m in draws], strict=True)), light_matrix)
-                shadow_matrices[index] = shadow_matrix(light_matrix)
-                casts[index] = 1
-        shadow_textures = iter(shadow_map.texture for shadow_map in shadow_maps)
-        with Framebuffer(width, height) as target:
-            target.clear((*background, 0.0))
-            GL.glEnable(GL.GL_DEPTH_TEST)
-            GL.glDepthFunc(GL.GL_LESS)
-            program.use()
-            program.set_mat4("u_view_projection", view_projection)
-            _set_lights(program, lights, casts, shadow_matrices)
-            _set_view(program, camera)
-            for index in range(MAX_LIGHTS):
-                GL.glUniform1i(_location(program, f"u_shadow{index}"), _SHADOW_UNIT + index)
-                GL.glActiveTexture(GL.GL_TEXTURE0 + _SHADOW_UNIT + index)
-                GL.glBindTexture(GL.GL_TEXTURE_2D, next(shadow_textures) if casts[index] else 0)
-            for index in range(MAX_LAYERS):
-                GL.glUniform1i(_location(program, f"u_table{index}"), index)
-                GL.glUniform1i(_location(program, f"u_map{index}"), MAX_LAYERS + index)
-            GL.glUniform1i(_location(program, "u_composite"), _COMPOSITE_UNIT)
+    with SurfacePass(
+        mesh, camera, lights, stack, width, height, specular=specular, substrate_specular=substrate_specular,
+        model=model, props=props, shadow_map_size=shadow_map_size,
+    ) as surface_pass, Framebuffer(width, height) as target:  # fmt: skip
+        target.clear((*background, 0.0))
+        surface_pass.draw(target, split=False)
+        return target.read_rgba()[..., :3]
 
-            # The product.
-            if channel is not None:
-                textures += _bind_channel_stack(program, channel)
+
+class SurfacePass:
+    """The layer pass's GL resources for one frame: meshes, tables, shadow maps; :meth:`draw` renders into a target.
+
+    A context manager (parameters as :func:`render_layers`); the resources are freed on exit.
+    """
+
+    def __init__(
+        self,
+        mesh: trimesh.Trimesh,
+        camera: Camera,
+        lights: Sequence[Light],
+        stack: ChannelStack | Precomposed,
+        width: int,
+        height: int,
+        *,
+        specular: Sequence[Specular | None] = (),
+        substrate_specular: Specular | None = None,
+        model: np.ndarray | None = None,
+        props: Sequence[Prop] = (),
+        shadow_map_size: int = 1024,
+    ) -> None:
+        _check_lights(lights)
+        lobes = list(specular) or [None] * stack.n_layers
+        if len(lobes) != stack.n_layers:
+            raise ValueError(f"one specular entry per layer is needed: {stack.n_layers} layers, {len(lobes)} entries")
+        self.lobes_bottom_up = [*lobes[::-1], *[None] * (MAX_LAYERS - len(lobes)), substrate_specular]
+        self.stack = stack
+        self.channel = _channel_uniforms(stack) if isinstance(stack, ChannelStack) else None
+        self.composite_texels = None if self.channel is not None else _composite_texels(stack)
+        self.model = np.eye(4) if model is None else np.asarray(model, dtype=float)
+        self.props = list(props)
+        for prop in self.props:
+            albedo = np.asarray(prop.albedo, dtype=float)
+            if albedo.shape != (3,) or not (
+                np.all(np.isfinite(albedo)) and 0.0 <= albedo.min() <= albedo.max() <= 1.0
+            ):
+                raise ValueError(f"a prop's albedo must be linear RGB in [0, 1], got {prop.albedo}")
+        self.draws = [(mesh, self.model)] + [
+            (p.mesh, np.eye(4) if p.model is None else np.asarray(p.model, float)) for p in self.props
+        ]
+        self.camera, self.lights = camera, list(lights)
+        self.view_projection = camera.projection_matrix(width / height) @ camera.view_matrix()
+        self.shadow_map_size = shadow_map_size
+        context.make_current(width, height)
+        self.program = _layers_program()
+        self.textures: list[int] = []
+        self.shadow_maps: list[ShadowMap] = []
+        self.gpu_meshes: list[GpuMesh] = []
+        try:
+            self._prepare()
+        except BaseException:
+            self.release()
+            raise
+
+    def _prepare(self) -> None:
+        self.gpu_meshes = [GpuMesh(m) for m, _ in self.draws]
+        centre, radius = _world_bounds(self.draws)
+        self.shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
+        self.casts = np.zeros(MAX_LIGHTS, dtype=np.int32)
+        for index, light in enumerate(self.lights):
+            if light.cast_shadows:
+                self.shadow_maps.append(ShadowMap(self.shadow_map_size))
+                light_matrix = light_view_projection(light, centre, radius)
+                self.shadow_maps[-1].render(
+                    list(zip(self.gpu_meshes, [m for _, m in self.draws], strict=True)), light_matrix
+                )
+                self.shadow_matrices[index] = shadow_matrix(light_matrix)
+                self.casts[index] = 1
+        if self.composite_texels is not None:
+            self.textures.append(_array_texture(self.composite_texels))
+
+    def draw(self, target: Framebuffer, *, split: bool) -> None:
+        """Draw the mesh and the props into ``target`` (bound, cleared by the caller).
+
+        ``split``: the skin pass's three outputs (km_layers.frag), the mesh being skin; else one colour output.
+        """
+        program = self.program
+        target.bind()
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthFunc(GL.GL_LESS)
+        program.use()
+        program.set_mat4("u_view_projection", self.view_projection)
+        program.set_mat4("u_view", self.camera.view_matrix())
+        GL.glUniform1i(_location(program, "u_split"), int(split))
+        _set_lights(program, self.lights, self.casts, self.shadow_matrices)
+        _set_view(program, self.camera)
+        shadow_textures = iter(shadow_map.texture for shadow_map in self.shadow_maps)
+        for index in range(MAX_LIGHTS):
+            GL.glUniform1i(_location(program, f"u_shadow{index}"), _SHADOW_UNIT + index)
+            GL.glActiveTexture(GL.GL_TEXTURE0 + _SHADOW_UNIT + index)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, next(shadow_textures) if self.casts[index] else 0)
+        for index in range(MAX_LAYERS):
+            GL.glUniform1i(_location(program, f"u_table{index}"), index)
+            GL.glUniform1i(_location(program, f"u_map{index}"), MAX_LAYERS + index)
+        GL.glUniform1i(_location(program, "u_composite"), _COMPOSITE_UNIT)
+        created: list[int] = []
+        try:
+            # The product (or the skin).
+            if self.channel is not None:
+                created += _bind_channel_stack(program, self.channel)
             else:
-                textures.append(_array_texture(composite_texels))
-                _bind_precomposed(program, stack.n_layers, textures[-1])
-            _set_specular(program, specular[::-1])
-            _draw(program, gpu_meshes[0], model)
+                _bind_precomposed(program, self.stack.n_layers, self.textures[0])
+            _set_specular(program, self.lobes_bottom_up)
+            GL.glUniform1i(_location(program, "u_skin"), 1)
+            _draw(program, self.gpu_meshes[0], self.model)
             # The props: bare Lambert substrates in RGB.
             _set_specular(program, [])
-            for prop, gpu_mesh, (_, prop_model) in zip(props, gpu_meshes[1:], draws[1:], strict=True):
-                textures += _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
+            GL.glUniform1i(_location(program, "u_skin"), 0)
+            for prop, gpu_mesh, (_, prop_model) in zip(self.props, self.gpu_meshes[1:], self.draws[1:], strict=True):
+                created += _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
                 _draw(program, gpu_mesh, prop_model)
             GL.glFinish()
-            return target.read_rgba()[..., :3]
-    finally:
-        for unit_index in range(_SHADOW_UNIT + MAX_LIGHTS):
-            GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
-            GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
-            GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
-        GL.glActiveTexture(GL.GL_TEXTURE0)
-        if textures:
-            GL.glDeleteTextures(len(textures), textures)
-        for item in [*shadow_maps, *gpu_meshes]:
+        finally:
+            _unbind_units()
+            if created:
+                GL.glDeleteTextures(len(created), created)
+
+    def release(self) -> None:
+        """Free the meshes, textures and shadow maps."""
+        if self.textures:
+            GL.glDeleteTextures(len(self.textures), self.textures)
+        self.textures = []
+        for item in [*self.shadow_maps, *self.gpu_meshes]:
             item.release()
+        self.shadow_maps, self.gpu_meshes = [], []
+
+    def __enter__(self) -> SurfacePass:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.release()
+
+
+def _unbind_units() -> None:
+    for unit_index in range(_SHADOW_UNIT + MAX_LIGHTS):
+        GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+    GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
 def _draw(program: Program, gpu_mesh: GpuMesh, model: np.ndarray) -> None:
@@ -489,17 +572,19 @@ def _set_view(program: Program, camera: Camera) -> None:
         program.set_vec3("u_view_vector", camera.eye)
 
 
-def _set_specular(program: Program, lobes_bottom_up: Sequence[Specular | None]) -> None:
-    on = np.zeros(MAX_LAYERS, dtype=np.int32)
-    roughness = np.ones(MAX_LAYERS)
-    f0 = np.zeros(MAX_LAYERS)
-    for index, lobe in enumerate(lobes_bottom_up):
+def _set_specular(program: Program, lobes: Sequence[Specular | None]) -> None:
+    """Lobes of the films bottom-up (slots 0 .. MAX_LAYERS - 1) and of the substrate (slot MAX_LAYERS)."""
+    slots = MAX_LAYERS + 1
+    on = np.zeros(slots, dtype=np.int32)
+    roughness = np.ones(slots)
+    f0 = np.zeros(slots)
+    for index, lobe in enumerate(lobes):
         if lobe is not None:
             on[index], roughness[index], f0[index] = 1, lobe.roughness, lobe.f0
     GL.glUniform1i(_location(program, "u_any_specular"), int(on.any()))
-    GL.glUniform1iv(_location(program, "u_specular_on"), MAX_LAYERS, on)
-    GL.glUniform1fv(_location(program, "u_roughness"), MAX_LAYERS, roughness.astype(np.float32))
-    GL.glUniform1fv(_location(program, "u_f0"), MAX_LAYERS, f0.astype(np.float32))
+    GL.glUniform1iv(_location(program, "u_specular_on"), slots, on)
+    GL.glUniform1fv(_location(program, "u_roughness"), slots, roughness.astype(np.float32))
+    GL.glUniform1fv(_location(program, "u_f0"), slots, f0.astype(np.float32))
 
 
 def _bind_precomposed(program: Program, n_layers: int, texture: int) -> None:

@@ -147,13 +147,13 @@ def test_precomposed_maps_are_read_over_uv_with_row_zero_at_the_top():
     reflectance = np.zeros((2, 2, 3))
     reflectance[0] = (0.9, 0.1, 0.1)  # top half
     reflectance[1] = (0.1, 0.1, 0.9)  # bottom half
-    attenuation = np.ones((1, 2, 2, 3))
+    attenuation = np.ones((2, 2, 2, 3))
     light = DirectionalLight((0.0, 0.0, -1.0), (1.0, 1.0, 1.0))
-    image = render(Precomposed(reflectance, attenuation), [light])
+    image = render(Precomposed(reflectance, np.zeros_like(reflectance), attenuation), [light])
     # Bilinear between the two texel centres (v = 0.25 and 0.75); beyond them the edge value.
     np.testing.assert_allclose(image[2, SIZE // 2], (0.9, 0.1, 0.1), rtol=1e-5)
     np.testing.assert_allclose(image[SIZE - 3, SIZE // 2], (0.1, 0.1, 0.9), rtol=1e-5)
-    uniform = render(Precomposed(np.array([0.3, 0.4, 0.5]), np.ones((2, 3))), [light])
+    uniform = render(Precomposed(np.array([0.3, 0.4, 0.5]), np.zeros(3), np.ones((3, 3))), [light])
     np.testing.assert_allclose(uniform, np.broadcast_to([0.3, 0.4, 0.5], uniform.shape), rtol=1e-6)
 
 
@@ -171,4 +171,4 @@ def test_bad_lights_and_lobes_raise_value_error():
     with pytest.raises(ValueError, match="reference distance"):
         PointLight((0.0, 0.0, 1.0), (1.0, 1.0, 1.0), 0.0)
     with pytest.raises(ValueError, match="precomposed"):
-        render(Precomposed(np.ones((2, 2, 3)), np.ones((1, 3, 3, 3))), [light])
+        render(Precomposed(np.ones((2, 2, 3)), np.ones((2, 2, 3)), np.ones((2, 3, 3, 3))), [light])

@@ -18,18 +18,25 @@
 // coming back out is attenuated by the films above it: A_i = product over layers j above i of T_j^2 (per channel,
 // converted to RGB like the diffuse part).
 //
+// The substrate may have a lobe of its own (skin: F0 ~ 0.028), attenuated by every film (A = product of all T^2).
+//
 // Radiance. With E_l the light's value for a white Lambert surface facing it (the unit of the whole renderer) and
 // v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, 0 = shadowed, 1 = lit):
 //   colour = sum over lights of E_l v_l max(N.L, 0) (R_rgb + pi sum_i A_i f_spec,i)
 // (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
+//
+// Split mode (u_split = 1, the skin pass of renderer.skin): the light that entered the substrate and came back out,
+// E v cos (R_rgb - R_black) with R_black the stack's reflectance over a black substrate, goes to f_skin (to be blurred
+// by subsurface scattering); everything else, E v cos (R_black + pi sum A f), to f_colour; f_depth holds the
+// view-space depth (mm) and a skin mask (1 where u_skin = 1). Without a blur, f_colour + f_skin = colour.
 //
 // Table texture layout (RGBA32F, read with texelFetch, one texel column per thickness sample):
 //   rows 0 .. G-1      R0 of channel group g (channels 4g .. 4g+3)
 //   rows G .. 2G-1     T of channel group g
 //   row  2G            thickness of the sample in mm (red)
 // Padding channels hold R0 = T = 0 and a zero row of u_to_rgb, so they contribute nothing.
-// Composite texture (precomposed mode; 2-D array over uv): layer 0 the stack's RGB reflectance, layer 1 + i the RGB
-// specular attenuation A of layer i (bottom-up index, as above).
+// Composite texture (precomposed mode; 2-D array over uv): layer 0 the stack's RGB reflectance over the substrate,
+// layer 1 over black, layer 2 the substrate lobe's attenuation, layer 3 + i the attenuation A of film i (bottom-up).
 
 #define MAX_LAYERS 4
 #define MAX_GROUPS 8
@@ -40,6 +47,7 @@
 in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
+in float v_view_depth;
 
 uniform int u_layer_count;                   // number of layers, 0 .. MAX_LAYERS
 uniform int u_group_count;                   // G = ceil(channels / 4), 1 .. MAX_GROUPS
@@ -59,10 +67,12 @@ uniform vec3 u_to_rgb[MAX_CHANNELS];         // row c: linear RGB contributed by
 uniform int u_precomposed;                   // 1: reflectance and attenuation from u_composite
 uniform sampler2DArray u_composite;          // precomposed layers (layout above)
 
-uniform int u_any_specular;                  // 1: some layer has a lobe (else attenuation is not needed)
-uniform int u_specular_on[MAX_LAYERS];       // 1: the layer has a lobe
-uniform float u_roughness[MAX_LAYERS];       // Beckmann m (RMS microfacet slope), > 0
-uniform float u_f0[MAX_LAYERS];              // Fresnel reflectance at normal incidence
+uniform int u_any_specular;                  // 1: some layer or the substrate has a lobe
+uniform int u_specular_on[MAX_LAYERS + 1];   // 1: the film (bottom-up index) has a lobe; index MAX_LAYERS: substrate
+uniform float u_roughness[MAX_LAYERS + 1];   // Beckmann m (RMS microfacet slope), > 0
+uniform float u_f0[MAX_LAYERS + 1];          // Fresnel reflectance at normal incidence
+uniform int u_split;                         // 1: skin pass outputs (f_skin, f_depth); 0: f_colour only
+uniform int u_skin;                          // 1: this surface is skin (its substrate light goes to f_skin)
 
 uniform int u_light_count;                   // 0 .. MAX_LIGHTS
 uniform int u_light_is_point[MAX_LIGHTS];    // 0: directional, 1: point
@@ -80,6 +90,8 @@ uniform int u_orthographic;                  // 1: the view direction is u_view_
 uniform vec3 u_view_vector;                  // orthographic: unit vector towards the camera; else: eye (mm)
 
 layout(location = 0) out vec4 f_colour;
+layout(location = 1) out vec4 f_skin;
+layout(location = 2) out vec4 f_depth;
 
 float layer_thickness(int layer) {
     if (u_use_map[layer] == 0) return u_thickness[layer];
@@ -121,14 +133,17 @@ vec3 group_to_rgb(vec4 channels, int g) {
          + channels.w * u_to_rgb[4 * g + 3];
 }
 
-// The stack's linear RGB reflectance and the RGB specular attenuation of each layer (bottom-up index), composed one
-// channel group at a time: every layer's R0 and T for the group, bottom-up, then the group's share of the RGB.
-void stack_optics(out vec3 reflectance, out vec3 attenuation[MAX_LAYERS]) {
-    for (int layer = 0; layer < MAX_LAYERS; ++layer) attenuation[layer] = vec3(0.0);
+// The stack's linear RGB reflectance over the substrate and over black, and the RGB specular attenuation of each film
+// (bottom-up index) and of the substrate (index MAX_LAYERS), composed one channel group at a time: every film's R0 and
+// T for the group, bottom-up, then the group's share of the RGB.
+void stack_optics(out vec3 reflectance, out vec3 over_black, out vec3 attenuation[MAX_LAYERS + 1]) {
+    for (int layer = 0; layer <= MAX_LAYERS; ++layer) attenuation[layer] = vec3(0.0);
     if (u_precomposed == 1) {
         reflectance = texture(u_composite, vec3(v_uv, 0.0)).rgb;
+        over_black = texture(u_composite, vec3(v_uv, 1.0)).rgb;
+        attenuation[MAX_LAYERS] = texture(u_composite, vec3(v_uv, 2.0)).rgb;
         for (int layer = 0; layer < u_layer_count; ++layer) {
-            attenuation[layer] = texture(u_composite, vec3(v_uv, float(layer + 1))).rgb;
+            attenuation[layer] = texture(u_composite, vec3(v_uv, float(layer + 3))).rgb;
         }
         return;
     }
@@ -138,8 +153,10 @@ void stack_optics(out vec3 reflectance, out vec3 attenuation[MAX_LAYERS]) {
         locate(layer, u_sample_count[layer], layer_thickness(layer), j0[layer], w[layer]);
     }
     reflectance = vec3(0.0);
+    over_black = vec3(0.0);
     for (int g = 0; g < u_group_count; ++g) {
         vec4 ground = u_substrate[g];
+        vec4 black = vec4(0.0);
         vec4 t2[MAX_LAYERS];
         for (int layer = 0; layer < u_layer_count; ++layer) {
             int n = u_sample_count[layer];
@@ -150,16 +167,20 @@ void stack_optics(out vec3 reflectance, out vec3 attenuation[MAX_LAYERS]) {
             // Padding channels (r0 = t = rg = 0) and a lossless white over a white ground (denominator 0) stay finite.
             vec4 denominator = max(vec4(1.0) - r0 * ground, vec4(1e-30));
             ground = r0 + t * t * ground / denominator;
+            black = r0 + t * t * black / max(vec4(1.0) - r0 * black, vec4(1e-30));
             t2[layer] = t * t;
         }
         reflectance += group_to_rgb(ground, g);
+        over_black += group_to_rgb(black, g);
         if (u_any_specular == 1) {
-            // Attenuation of layer i: product of T^2 over the layers above it (the top layer: 1 in every channel).
+            // Attenuation of film i: product of T^2 over the films above it (the top film: 1 in every channel); the
+            // substrate's: over all films.
             vec4 above = vec4(1.0);
             for (int layer = u_layer_count - 1; layer >= 0; --layer) {
                 attenuation[layer] += group_to_rgb(above, g);
                 above *= t2[layer];
             }
+            attenuation[MAX_LAYERS] += group_to_rgb(above, g);
         }
     }
 }
@@ -186,30 +207,34 @@ float shadow_visibility(int light, vec3 position) {
     return lit / 9.0;
 }
 
-// Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of a layer, for unit N, L, V.
-float kelemen(int layer, vec3 n, vec3 l, vec3 v) {
+// Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of lobe `k` (a film's bottom-up index, or MAX_LAYERS: the substrate).
+float kelemen(int k, vec3 n, vec3 l, vec3 v) {
     vec3 h_sum = l + v;
     float h_length2 = dot(h_sum, h_sum);  // = 2 (1 + L.V)
     if (h_length2 < 1e-12) return 0.0;
     vec3 h = h_sum * inversesqrt(h_length2);
     float cos_a = dot(n, h);
     if (cos_a <= 0.0) return 0.0;
-    float m2 = u_roughness[layer] * u_roughness[layer];
+    float m2 = u_roughness[k] * u_roughness[k];
     float cos2 = cos_a * cos_a;
     float tan2 = (1.0 - cos2) / cos2;
     float distribution = exp(-tan2 / m2) / (PI * m2 * cos2 * cos2);
     float c = 1.0 - clamp(dot(h, l), 0.0, 1.0);
-    float fresnel = u_f0[layer] + (1.0 - u_f0[layer]) * c * c * c * c * c;
+    float fresnel = u_f0[k] + (1.0 - u_f0[k]) * c * c * c * c * c;
     return distribution * fresnel / h_length2;
 }
 
 void main() {
     vec3 reflectance;
-    vec3 attenuation[MAX_LAYERS];
-    stack_optics(reflectance, attenuation);
+    vec3 over_black;
+    vec3 attenuation[MAX_LAYERS + 1];
+    stack_optics(reflectance, over_black, attenuation);
     vec3 n = normalize(v_normal);
     vec3 v = u_orthographic == 1 ? u_view_vector : normalize(u_view_vector - v_position);
+    bool split = u_split == 1 && u_skin == 1;
+    vec3 surface = split ? over_black : reflectance;
     vec3 colour = vec3(0.0);
+    vec3 skin = vec3(0.0);
     for (int light = 0; light < u_light_count; ++light) {
         vec3 l;
         vec3 e = u_light_radiance[light];
@@ -224,10 +249,16 @@ void main() {
         float cos_theta = dot(n, l);
         if (cos_theta <= 0.0) continue;
         vec3 specular = vec3(0.0);
-        for (int layer = 0; layer < u_layer_count; ++layer) {
-            if (u_specular_on[layer] == 1) specular += attenuation[layer] * kelemen(layer, n, l, v);
+        for (int k = 0; k <= MAX_LAYERS; ++k) {
+            if (u_specular_on[k] == 1 && (k < u_layer_count || k == MAX_LAYERS)) {
+                specular += attenuation[k] * kelemen(k, n, l, v);
+            }
         }
-        colour += e * shadow_visibility(light, v_position) * cos_theta * (reflectance + PI * specular);
+        vec3 incident = e * shadow_visibility(light, v_position) * cos_theta;
+        colour += incident * (surface + PI * specular);
+        skin += incident * (reflectance - over_black);
     }
     f_colour = vec4(colour, 1.0);
+    f_skin = vec4(split ? skin : vec3(0.0), 1.0);
+    f_depth = vec4(v_view_depth, split ? 1.0 : 0.0, 0.0, 1.0);
 }

@@ -9,15 +9,18 @@ layout(location = 2) in vec2 a_uv;        // texture coordinates, (0, 0) bottom-
 uniform mat4 u_model;            // object -> world
 uniform mat4 u_view_projection;  // world -> clip
 uniform mat3 u_normal_matrix;    // inverse transpose of the model's upper 3x3
+uniform mat4 u_view;             // world -> camera
 
 out vec3 v_position;
 out vec3 v_normal;
 out vec2 v_uv;
+out float v_view_depth;          // distance in front of the camera along its axis, mm
 
 void main() {
     vec4 world = u_model * vec4(a_position, 1.0);
     v_position = world.xyz;
     v_normal = u_normal_matrix * a_normal;
     v_uv = a_uv;
+    v_view_depth = -(u_view * world).z;
     gl_Position = u_view_projection * world;
 }
