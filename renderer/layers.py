@@ -35,7 +35,7 @@ from renderer.framebuffer import Framebuffer
 from renderer.meshes import GpuMesh
 from renderer.program import Program
 from renderer.scene import Camera, Light, OrthographicCamera, PointLight
-from renderer.shadows import ShadowMap, light_view_projection, shadow_matrix
+from renderer.shadows import MARGIN, ShadowMap, light_view_projection, shadow_matrix
 
 #: Most films in one stack.
 MAX_LAYERS = 4
@@ -452,6 +452,7 @@ class SurfacePass:
         centre, radius = _world_bounds(self.draws)
         self.shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
         self.casts = np.zeros(MAX_LIGHTS, dtype=np.int32)
+        self.shadow_texel_mm = 2.0 * (1.0 + MARGIN) * radius / self.shadow_map_size  # the map spans the sphere
         for index, light in enumerate(self.lights):
             if light.cast_shadows:
                 self.shadow_maps.append(ShadowMap(self.shadow_map_size))
@@ -478,6 +479,9 @@ class SurfacePass:
         program.set_mat4("u_view", self.camera.view_matrix())
         GL.glUniform1i(_location(program, "u_split"), int(split))
         _set_lights(program, self.lights, self.casts, self.shadow_matrices)
+        GL.glUniform1fv(
+            _location(program, "u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
+        )
         _set_view(program, self.camera)
         shadow_textures = iter(shadow_map.texture for shadow_map in self.shadow_maps)
         for index in range(MAX_LIGHTS):

@@ -21,7 +21,8 @@
 // The substrate may have a lobe of its own (skin: F0 ~ 0.028), attenuated by every film (A = product of all T^2).
 //
 // Radiance. With E_l the light's value for a white Lambert surface facing it (the unit of the whole renderer) and
-// v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, 0 = shadowed, 1 = lit):
+// v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, looked up 0.5 to 2 texels off the
+// surface along its normal; 0 = shadowed, 1 = lit):
 //   colour = sum over lights of E_l v_l max(N.L, 0) (R_rgb + pi sum_i A_i f_spec,i)
 // (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
 //
@@ -81,6 +82,7 @@ uniform vec3 u_light_radiance[MAX_LIGHTS];   // E (at the reference distance for
 uniform float u_light_reference[MAX_LIGHTS]; // point light: distance (mm) at which it delivers E
 uniform int u_light_shadow[MAX_LIGHTS];      // 1: look the light's shadow map up
 uniform mat4 u_shadow_matrix[MAX_LIGHTS];    // world -> shadow map texture coordinates and depth, [0, 1]^3
+uniform float u_shadow_texel[MAX_LIGHTS];    // size of a shadow map texel at the scene's centre, mm
 uniform sampler2DShadow u_shadow0;
 uniform sampler2DShadow u_shadow1;
 uniform sampler2DShadow u_shadow2;
@@ -254,7 +256,10 @@ void main() {
                 specular += attenuation[k] * kelemen(k, n, l, v);
             }
         }
-        vec3 incident = e * shadow_visibility(light, v_position) * cos_theta;
+        // Looked up a little off the surface, along the normal (more at grazing light), so that a curved surface
+        // does not shadow itself between the map's texels ("acne").
+        vec3 lookup = v_position + n * u_shadow_texel[light] * (0.5 + 1.5 * (1.0 - cos_theta));
+        vec3 incident = e * shadow_visibility(light, lookup) * cos_theta;
         colour += incident * (surface + PI * specular);
         skin += incident * (reflectance - over_black);
     }
