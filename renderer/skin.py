@@ -43,6 +43,8 @@ SKIN_VARIANCES_MM2 = (0.0064, 0.0516, 0.2719, 2.0062)
 SKIN_WEIGHTS = ((0.2405, 0.4474, 0.6157), (0.1158, 0.3661, 0.3439), (0.1836, 0.1864, 0.0), (0.4600, 0.0, 0.0402))
 #: Skin's Fresnel reflectance at normal incidence (method notes) as an index of refraction: (1 + sqrt F0) / (1 - ...).
 SKIN_IOR = (1.0 + 0.028**0.5) / (1.0 - 0.028**0.5)
+#: Skin's own lobe by default: Beckmann roughness 0.35 (d'Eon and Luebke's fit to measured skin), F0 0.028.
+SKIN_SPECULAR = Specular(0.35, SKIN_IOR)
 
 _blur: Program | None = None
 
@@ -150,7 +152,7 @@ def render_skin(
     *,
     scattering: Scattering | None = Scattering(),
     specular: Sequence[Specular | None] = (),
-    skin_specular: Specular | None = Specular(0.35, SKIN_IOR),
+    skin_specular: Specular | None = SKIN_SPECULAR,
     model: np.ndarray | None = None,
     props: Sequence[Prop] = (),
     shadow_map_size: int = 1024,
@@ -159,7 +161,7 @@ def render_skin(
     """Render a skin mesh wearing a makeup stack (its substrate is the skin's albedo) into linear RGB (h, w, 3).
 
     Parameters as :func:`renderer.layers.render_layers`, with ``skin_specular`` the skin's own lobe (default:
-    Beckmann roughness 0.35, F0 0.028) and ``scattering`` the subsurface blur (None: no blur, the result equals
+    :data:`SKIN_SPECULAR`) and ``scattering`` the subsurface blur (None: no blur, the result equals
     the layer pass's).
     """
     with SurfacePass(
