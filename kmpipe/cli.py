@@ -453,10 +453,15 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
             args.scene,
             args.output,
             explain=args.explain,
+            scattering=not args.no_sss,
+            ab_scattering=args.ab_sss,
             echo=lambda text: console.print(text, highlight=False, markup=False, soft_wrap=True),
             on_frame=on_frame,
         )
-    console.print(f"wrote {len(written) // 2} frames (EXR and PNG) to {args.output}", highlight=False)
+    frames = [path for path in written if path.suffix == ".exr" and path.parent == args.output]
+    console.print(f"wrote {len(frames)} frames (EXR and PNG) to {args.output}", highlight=False)
+    if args.ab_sss:
+        console.print(f"wrote the A/B sheet {args.output / 'ab_sss.png'} (frames without SSS in no_sss/)")
     return EXIT_OK
 
 
@@ -623,6 +628,13 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("scene", type=Path, help="scene file, TOML (docs in kmpipe/scene.py)")
     render.add_argument("-o", "--output", type=Path, required=True, help="folder for the frames")
     render.add_argument("--explain", action="store_true", help="print the render plan: modes tried, chosen, tables")
+    render.add_argument("--no-sss", action="store_true", help="on skin: no subsurface scattering")
+    render.add_argument(
+        "--ab-sss",
+        action="store_true",
+        help="on skin: also render every frame without subsurface scattering (OUT_DIR/no_sss/) and lay both out "
+        "on OUT_DIR/ab_sss.png",
+    )
     render.set_defaults(run=_cmd_render)
     return parser
 

@@ -122,7 +122,49 @@ def plan_scene(scene: Scene) -> ScenePlan:
         notes.append("ground: none")
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
     notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
+    notes += _skin_notes(scene)
     return ScenePlan(tables, size, tuple(wanted), tuple(notes))
+
+
+def _skin_notes(scene: Scene) -> list[str]:
+    skin = scene.info.skin
+    if skin is None:
+        return ["skin: none (the films lie on a substrate; no subsurface scattering)"]
+    lobe = skin_lobe(scene)
+    notes = [
+        f"skin: {skin.reflectance}; its own lobe "
+        + ("none" if lobe is None else f"roughness {lobe.roughness:g}, F0 {lobe.f0:.3f}")
+    ]
+    scattering = skin_scattering(scene)
+    if scattering is None:
+        notes.append("subsurface scattering: off (the skin's light is not blurred)")
+    else:
+        notes.append(
+            f"subsurface scattering: 4 Gaussians x 2 separable 7-tap passes on skin pixels, alpha {scattering.alpha:g} "
+            f"(1 = the measured profile at true scale), beta {scattering.beta:g}, clamp {scattering.gradient_clamp:g}"
+        )
+    return notes
+
+
+def skin_lobe(scene: Scene):
+    """The skin's own specular lobe (renderer Specular), or None."""
+    from renderer.layers import Specular
+    from renderer.skin import SKIN_SPECULAR
+
+    specular = scene.info.skin.specular
+    if specular is True:
+        return SKIN_SPECULAR
+    return None if specular is False else Specular(specular.roughness, specular.ior)
+
+
+def skin_scattering(scene: Scene, enabled: bool = True):
+    """The skin's subsurface scattering (renderer Scattering), or None when off."""
+    from renderer.skin import Scattering
+
+    scattering = scene.info.skin.scattering
+    if not enabled or scattering is False:
+        return None
+    return Scattering() if scattering is True else Scattering(**scattering.model_dump())
 
 
 def _stack_input(plan: ScenePlan, scene: Scene):
@@ -271,20 +313,32 @@ def render_scene(
     out_dir: str | Path,
     *,
     explain: bool = False,
+    scattering: bool = True,
+    ab_scattering: bool = False,
     echo: Callable[[str], None] = print,
     on_frame: Callable[[int, int], None] | None = None,
 ) -> list[Path]:
     """Render every frame of a scene file into ``out_dir`` as ``frame_NNN.exr`` (linear, float) and ``.png`` (sRGB).
 
     ``explain`` passes the plan's text to ``echo``; ``on_frame(i, n)`` is called after frame i of n. The PNG is
-    tone mapped as the scene's ``[output]`` says; the EXR keeps the linear render.
-    Returns the files written, EXR and PNG of each frame in order.
+    tone mapped as the scene's ``[output]`` says; the EXR keeps the linear render. On skin, ``scattering=False``
+    turns subsurface scattering off, and ``ab_scattering`` renders every frame without it as well (into
+    ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below, thesis figure 5.58).
+    Returns the files written, EXR and PNG of each frame in order (then the A/B frames and sheet).
     """
     from renderer.image_io import write_exr, write_png
     from renderer.layers import Specular, render_layers
+    from renderer.skin import render_skin
     from renderer.tone_map import tone_map
 
     scene = load_scene(scene_path)
+    if ab_scattering and (scene.info.skin is None or skin_scattering(scene) is None):
+        raise InputError(
+            "--ab-sss compares renders with and without subsurface scattering: the scene needs [skin] with its "
+            "scattering on",
+            path=scene.path,
+            field="skin.scattering",
+        )
     plan = plan_scene(scene)
     if explain:
         echo(plan.explain())
@@ -311,31 +365,67 @@ def render_scene(
         "camera_elevation_deg": float(info.camera.elevation_deg),
         "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
     }
+    on_skin = info.skin is not None
+    blur = skin_scattering(scene, scattering) if on_skin else None
+    header["subsurface_scattering"] = (
+        "none (no skin)" if not on_skin else "off" if blur is None
+        else f"alpha {blur.alpha:g}, beta {blur.beta:g}, clamp {blur.gradient_clamp:g}"
+    )  # fmt: skip
+    variants = [(out_dir, blur)]
+    if ab_scattering:
+        variants.append((out_dir / "no_sss", None))
+        (out_dir / "no_sss").mkdir(exist_ok=True)
     written = []
     angles = scene.turntable_angles_deg()
     for i, angle in enumerate(angles):
-        image = render_layers(
-            scene.mesh,
-            camera,
-            lights,
-            stack,
-            width,
-            height,
-            specular=specular,
-            model=turntable_model(scene, angle),
-            props=[ground] if ground is not None else [],
-            shadow_map_size=plan.shadow_map_size or SHADOW_MAP_SIZES[0],
-        )
-        exr, png = out_dir / f"frame_{i:03d}.exr", out_dir / f"frame_{i:03d}.png"
-        frame_header = {
-            **header,
-            "camera_azimuth_deg": float((info.camera.azimuth_deg + angle) % 360.0),
-            "turntable_deg": float(angle),
-            "frame": i,
+        common = {
+            "specular": specular,
+            "model": turntable_model(scene, angle),
+            "props": [ground] if ground is not None else [],
+            "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
         }
-        write_exr(exr, image, frame_header, half=False)
-        write_png(png, tone_map(image, info.output.tone_map, info.output.exposure_ev))
-        written += [exr, png]
+        for folder, variant in variants:
+            if on_skin:
+                image = render_skin(
+                    scene.mesh, camera, lights, stack, width, height,
+                    scattering=variant, skin_specular=skin_lobe(scene), **common,
+                )  # fmt: skip
+            else:
+                image = render_layers(scene.mesh, camera, lights, stack, width, height, **common)
+            exr, png = folder / f"frame_{i:03d}.exr", folder / f"frame_{i:03d}.png"
+            frame_header = {
+                **header,
+                "camera_azimuth_deg": float((info.camera.azimuth_deg + angle) % 360.0),
+                "turntable_deg": float(angle),
+                "frame": i,
+            }
+            if folder != out_dir:
+                frame_header["subsurface_scattering"] = "off (A/B comparison)"
+            write_exr(exr, image, frame_header, half=False)
+            write_png(png, tone_map(image, info.output.tone_map, info.output.exposure_ev))
+            written += [exr, png]
         if on_frame is not None:
             on_frame(i + 1, len(angles))
+    if ab_scattering:
+        written.append(_ab_sheet(out_dir, scene, len(angles)))
     return written
+
+
+def _ab_sheet(out_dir: Path, scene: Scene, frames: int) -> Path:
+    """``ab_sss.png``: up to 4 frames with subsurface scattering (top row) and without (bottom row)."""
+    from renderer.contact_sheet import make_sheet, write_sheet
+
+    picks = [round(i * frames / min(frames, 4)) for i in range(min(frames, 4))]
+    paths = [out_dir / f"frame_{i:03d}.exr" for i in picks] + [out_dir / "no_sss" / f"frame_{i:03d}.exr" for i in picks]
+    angles = scene.turntable_angles_deg()
+    columns = [f"{(scene.info.camera.azimuth_deg + angles[i]) % 360.0:g}°" for i in picks]
+    sheet = make_sheet(
+        paths,
+        rows=["with subsurface scattering", "without"],
+        columns=columns,
+        grid=(2, len(picks)),
+        header=f"{scene.name} · {scene.product} · {scene.shade} · {scene.info.scene.illuminant}",
+    )
+    path = out_dir / "ab_sss.png"
+    write_sheet(sheet, path)
+    return path

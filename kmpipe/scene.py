@@ -1,7 +1,8 @@
 """Scene files (TOML) for ``kmpipe render``: one stack of films over a substrate on a mesh, lights and a camera.
 
 A scene file names the mesh (a built-in shape or a mesh file), the films top first (kmpipe material files, each with
-a uniform thickness or a thickness map, and optionally a specular lobe), the substrate reflectance, up to four
+a uniform thickness or a thickness map, and optionally a specular lobe), the substrate (a product's base) or the skin
+(a substrate that scatters light beneath its surface, with a lobe of its own), up to four
 directional or point lights, an optional ground under the product, a camera and, optionally, a turntable. Paths are
 relative to the scene file. Every problem is an :class:`~kmpipe.errors.InputError` naming the file, line and field.
 
@@ -43,7 +44,7 @@ MAX_LAYERS = 4
 #: Most lights in one scene (renderer.layers.MAX_LIGHTS).
 MAX_LIGHTS = 4
 #: Built-in meshes by name.
-BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact")
+BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact", "head", "cylinder")
 COLORCHECKER = "ColorChecker N Ohta"
 _PIXELS = Annotated[int, Field(ge=1, le=8192)]
 
@@ -86,19 +87,18 @@ class SubstrateInfo(_Strict):
     def _known_reflectance(cls, value: float | str) -> float | str:
         if isinstance(value, str):
             kind, _, name = value.partition(":")
-            if kind != "colorchecker" or name not in colour.SDS_COLOURCHECKERS[COLORCHECKER]:
+            if kind == "colorchecker" and name not in colour.SDS_COLOURCHECKERS[COLORCHECKER]:
                 raise ValueError(
-                    f"expected a number in [0, 1] or 'colorchecker:NAME' (a patch of {COLORCHECKER}, "
-                    f"e.g. 'colorchecker:light skin'), got {value!r}"
+                    f"{name!r} is not a patch of {COLORCHECKER} (e.g. 'colorchecker:light skin', 'dark skin')"
+                )
+            if kind != "colorchecker" and not value.partition(":")[0].lower().endswith(".csv"):
+                raise ValueError(
+                    "expected a number in [0, 1], 'colorchecker:NAME' (a patch of "
+                    f"{COLORCHECKER}) or a spectral CSV file 'FILE.csv[:COLUMN]', got {value!r}"
                 )
         elif not (math.isfinite(value) and 0.0 <= value <= 1.0):
             raise ValueError(f"a flat reflectance must lie in [0, 1], got {value}")
         return value
-
-
-_Finite = Annotated[float, Field(allow_inf_nan=False)]
-_Vector = tuple[_Finite, _Finite, _Finite]
-_NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 
 
 class ThicknessMapInfo(_Strict):
@@ -113,6 +113,25 @@ class ThicknessMapInfo(_Strict):
 class SpecularInfo(_Strict):
     roughness: float = Field(gt=0.0, le=2.0)
     ior: float = Field(default=1.5, ge=1.0, le=4.0)
+
+
+class ScatteringInfo(_Strict):
+    alpha: float = Field(default=1.0, gt=0.0, le=1000.0)
+    beta: float = Field(default=800.0, ge=0.0)
+    gradient_clamp: float = Field(default=0.001, ge=0.0)
+
+
+class SkinInfo(SubstrateInfo):
+    """Skin as the films' substrate: its reflectance, its own lobe (True: the default), its scattering."""
+
+    reflectance: float | str = "colorchecker:light skin"
+    specular: SpecularInfo | bool = True
+    scattering: ScatteringInfo | bool = True
+
+
+_Finite = Annotated[float, Field(allow_inf_nan=False)]
+_Vector = tuple[_Finite, _Finite, _Finite]
+_NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 
 
 class LayerInfo(_Strict):
@@ -172,13 +191,25 @@ class TurntableInfo(_Strict):
 
 class SceneFile(_Strict):
     scene: SceneInfo
-    substrate: SubstrateInfo
+    substrate: SubstrateInfo | None = None
+    skin: SkinInfo | None = None
     layer: list[LayerInfo] = Field(min_length=1, max_length=MAX_LAYERS)
     light: list[LightInfo] = Field(default=[LightInfo()], min_length=1, max_length=MAX_LIGHTS)
     ground: GroundInfo | None = None
     camera: CameraInfo = CameraInfo()
     turntable: TurntableInfo | None = None
     output: OutputInfo = OutputInfo()
+
+    @model_validator(mode="after")
+    def _one_substrate(self) -> SceneFile:
+        if (self.substrate is None) == (self.skin is None):
+            raise ValueError("give either [substrate] (a product's base) or [skin] (makeup on skin), not both")
+        return self
+
+    @property
+    def base(self) -> SubstrateInfo:
+        """What the films lie on: the substrate or the skin."""
+        return self.skin if self.skin is not None else self.substrate
 
 
 @dataclass(frozen=True)
@@ -187,6 +218,7 @@ class Scene:
 
     ``thicknesses_mm`` holds, per layer (top first), a number (uniform thickness, mm) or a 2-D array (a thickness
     map over the mesh's uv, mm, row 0 at v = 1). ``material_hashes`` are the SHA-256 of the material files.
+    ``substrate`` is the spectral reflectance of the substrate or skin on the materials' wavelength grid.
     """
 
     path: Path
@@ -194,6 +226,7 @@ class Scene:
     materials: tuple[Material, ...]
     thicknesses_mm: tuple[float | np.ndarray, ...]
     material_hashes: tuple[str, ...]
+    substrate: np.ndarray
     mesh: trimesh.Trimesh
     model: np.ndarray
 
@@ -224,13 +257,39 @@ class Scene:
         return float(value.min()), float(value.max())
 
     def substrate_reflectance(self) -> np.ndarray:
-        """Spectral reflectance of the substrate on the materials' wavelength grid."""
-        value = self.info.substrate.reflectance
-        wavelengths = self.wavelengths
-        if isinstance(value, str):
-            sd = colour.SDS_COLOURCHECKERS[COLORCHECKER][value.partition(":")[2]]
-            return np.interp(wavelengths, sd.wavelengths, sd.values)
+        """Spectral reflectance of the substrate (or skin) on the materials' wavelength grid."""
+        return self.substrate
+
+
+def _reflectance(value: float | str, wavelengths: np.ndarray, base: Path, where: dict) -> np.ndarray:
+    """A flat reflectance, a ColorChecker patch or a spectral CSV column, on ``wavelengths`` (nm)."""
+    from kmpipe.spectra import read_spectra_csv, resample
+
+    if not isinstance(value, str):
         return np.full(len(wavelengths), float(value))
+    kind, _, name = value.partition(":")
+    if kind == "colorchecker":
+        sd = colour.SDS_COLOURCHECKERS[COLORCHECKER][name]
+        return np.interp(wavelengths, sd.wavelengths, sd.values)
+    csv_path = base / kind
+    if not csv_path.is_file():
+        raise InputError(f"names the spectral CSV {csv_path}, which does not exist", **where)
+    table = read_spectra_csv(csv_path)
+    if table.wavelengths is None:
+        raise InputError(f"{csv_path} holds camera channels; a reflectance spectrum is needed", **where)
+    column = name or table.columns[0]
+    if column not in table.columns:
+        raise InputError(f"{csv_path} has no column {column!r} (it has {', '.join(table.columns)})", **where)
+    if table.wavelengths[0] > wavelengths[0] or table.wavelengths[-1] < wavelengths[-1]:
+        raise InputError(
+            f"{csv_path} covers {table.wavelengths[0]:g}-{table.wavelengths[-1]:g} nm; the materials need "
+            f"{wavelengths[0]:g}-{wavelengths[-1]:g} nm",
+            **where,
+        )
+    values = resample(table, wavelengths).values[table.columns.index(column)]
+    if not (np.all(np.isfinite(values)) and values.min() >= 0.0 and values.max() <= 1.0):
+        raise InputError(f"{csv_path}, column {column!r}: a reflectance must lie in [0, 1]", **where)
+    return values
 
 
 def _upright() -> np.ndarray:
@@ -251,6 +310,10 @@ def _mesh(name: str, base: Path) -> tuple[trimesh.Trimesh, np.ndarray]:
         return products.lipstick_bullet(), _upright()
     if name == "compact":
         return products.compact_pan(), _upright()
+    if name == "head":
+        return meshes.head(), np.eye(4)
+    if name == "cylinder":
+        return meshes.cylinder(40.0, 120.0), np.eye(4)
     return products.load_mesh(base / name), np.eye(4)
 
 
@@ -301,7 +364,10 @@ def load_scene(path: str | Path) -> Scene:
             line=toml_line(text, ("scene", "mesh")),
             field="scene.mesh",
         ) from None
-    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), mesh, model)
+    key = "skin" if info.skin is not None else "substrate"
+    where = {"path": path, "line": toml_line(text, (key, "reflectance")), "field": f"{key}.reflectance"}
+    substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where)
+    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, mesh, model)
 
 
 def _thickness_map(info: ThicknessMapInfo, base: Path, path: Path, text: str, index: int) -> np.ndarray:

@@ -15,12 +15,15 @@ import OpenImageIO as oiio
 #: Header attribute values the EXR writer accepts.
 AttributeValue = str | float | int
 
-_CHANNELS = {3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+#: The process's file creation mask (read once: os.umask can only be read by setting it).
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
 
 
 def _as_image(pixels: np.ndarray) -> np.ndarray:
     image = np.ascontiguousarray(pixels)  # OpenImageIO cannot take broadcast (zero-stride) arrays
-    if image.ndim != 3 or image.shape[2] not in _CHANNELS:
+    if image.ndim != 3 or image.shape[2] not in (3, 4):
         raise ValueError(f"expected an image of shape (height, width, 3 or 4), got {image.shape}")
     return image
 
@@ -36,6 +39,7 @@ def _write(path: Path, pixels: np.ndarray, spec: oiio.ImageSpec) -> None:
             raise OSError(f"{path}: OpenImageIO has no writer for this file type: {oiio.geterror()}")
         if not (output.open(temporary, spec) and output.write_image(pixels) and output.close()):
             raise OSError(f"{path}: write failed: {output.geterror()}")
+        os.chmod(temporary, 0o666 & ~_UMASK)  # mkstemp makes the file private; a finished image is not
         os.replace(temporary, path)
     finally:
         if os.path.exists(temporary):
@@ -163,3 +167,18 @@ def read_channel(path: str | Path, channel: str) -> np.ndarray:
         source.close()
     image = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
     return np.ascontiguousarray(image[..., index])
+
+
+def write_map(path: str | Path, values: np.ndarray) -> None:
+    """Write data in [0, 1], (height, width) or (height, width, 1, 3 or 4), as a 16-bit PNG with no sRGB encoding.
+
+    For maps that are data, not pictures: cosmetic and thickness maps (:func:`read_channel` reads them back).
+    """
+    data = np.asarray(values, dtype=np.float64)
+    if data.ndim == 2:
+        data = data[..., np.newaxis]
+    if data.ndim != 3 or data.shape[2] not in _CHANNELS or not np.all((data >= 0.0) & (data <= 1.0)):
+        raise ValueError(f"expected values in [0, 1] of shape (height, width[, 1, 3 or 4]), got {data.shape}")
+    codes = np.ascontiguousarray(np.rint(data * 65535.0).astype(np.uint16))
+    height, width, channels = codes.shape
+    _write(Path(path), codes, oiio.ImageSpec(width, height, channels, oiio.UINT16))

@@ -620,19 +620,20 @@ def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
     GL.glUniform1fv(_location(program, "u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
     GL.glUniform4fv(_location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
     GL.glUniform3fv(_location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
+    # Every texture is created first and bound afterwards: creating one binds it to the active unit, which would
+    # unbind what an earlier layer had put there.
+    units: list[tuple[int, int]] = []
     created = []
-    for index in range(MAX_LAYERS):
-        table_texture = map_texture = 0
-        if index < len(arrays):
-            x, r0, t = arrays[index]
-            created.append(_float_texture(_table_texels(x, r0, t, groups), linear=False))
-            table_texture = created[-1]
-            if maps[index] is not None:
-                texels = np.zeros((*maps[index].shape, 4))
-                texels[..., 0] = maps[index][::-1]  # row 0 of the map is the top (v = 1)
-                created.append(_float_texture(texels, linear=True))
-                map_texture = created[-1]
-        for unit, texture in ((index, table_texture), (MAX_LAYERS + index, map_texture)):
-            GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
-            GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+    for index, (x, r0, t) in enumerate(arrays):
+        created.append(_float_texture(_table_texels(x, r0, t, groups), linear=False))
+        units.append((index, created[-1]))
+        if maps[index] is not None:
+            texels = np.zeros((*maps[index].shape, 4))
+            texels[..., 0] = maps[index][::-1]  # row 0 of the map is the top (v = 1)
+            created.append(_float_texture(texels, linear=True))
+            units.append((MAX_LAYERS + index, created[-1]))
+    bound = dict(units)
+    for unit in range(2 * MAX_LAYERS):
+        GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, bound.get(unit, 0))
     return created

@@ -101,3 +101,80 @@ class GpuMesh:
 
     def __exit__(self, *exc_info: object) -> None:
         self.release()
+
+
+def _surface_of_revolution(radius_at, n_polar: int, n_azimuth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, faces and uv of a closed surface around the +y axis: ``radius_at(polar, azimuth)`` gives the point.
+
+    ``polar`` runs from 0 (top, +y, v = 1) to pi (bottom, v = 0); ``azimuth`` from -pi to pi with 0 facing +z
+    (u = 0.5 at the front, the seam at the back). Seam and pole vertices are duplicated so uv is continuous per
+    triangle; faces are counter-clockwise seen from outside.
+    """
+    polar = np.linspace(0.0, np.pi, n_polar + 1)
+    azimuth = np.linspace(-np.pi, np.pi, n_azimuth + 1)
+    p, a = np.meshgrid(polar, azimuth, indexing="ij")
+    vertices = radius_at(p, a).reshape(-1, 3)
+    uv = np.stack([0.5 + a / (2.0 * np.pi), 1.0 - p / np.pi], axis=-1).reshape(-1, 2)
+    row = n_azimuth + 1
+    i, j = np.meshgrid(np.arange(n_polar), np.arange(n_azimuth), indexing="ij")
+    v00 = (i * row + j).ravel()
+    v01, v10, v11 = v00 + 1, v00 + row, v00 + row + 1
+    upper = np.stack([v00, v11, v01], axis=-1)[i.ravel() > 0]  # degenerate at the top pole
+    lower = np.stack([v00, v10, v11], axis=-1)[i.ravel() < n_polar - 1]  # degenerate at the bottom pole
+    return vertices, np.concatenate([upper, lower]), uv
+
+
+def _smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals, averaged over vertices at the same position (so the uv seam is invisible)."""
+    triangles = vertices[faces]
+    face_normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    _, group = np.unique(np.round(vertices, 9), axis=0, return_inverse=True)
+    group = group.ravel()
+    sums = np.zeros((group.max() + 1, 3))
+    for corner in range(3):
+        np.add.at(sums, group[faces[:, corner]], face_normals)
+    normals = sums[group]
+    return normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
+def head(scale: float = 1.0, n_polar: int = 96, n_azimuth: int = 128) -> trimesh.Trimesh:
+    """A procedural head-like shape (mm): an ellipsoid 150 wide, 220 tall, 190 deep, with a nose and a chin.
+
+    Upright along +y, facing +z, centred at the origin. uv: u = 0.5 at the front (the nose), v = 0.5 at the eyes'
+    height; the face spans about u 0.33 .. 0.67, v 0.28 .. 0.7 (see :mod:`renderer.cosmetic_maps`). ``scale``
+    multiplies every length.
+    """
+
+    def point(polar, azimuth):
+        direction = np.stack([np.sin(polar) * np.sin(azimuth), np.cos(polar), np.sin(polar) * np.cos(azimuth)], axis=-1)
+        radii = np.array([75.0, 110.0, 95.0])
+        surface = direction * radii
+        front = np.clip(direction[..., 2], 0.0, None)
+        # Nose: a ridge below the eyes on the midline; chin: a bump low on the front.
+        nose = 22.0 * np.exp(-((azimuth / 0.10) ** 2) - (((polar - 1.72) / 0.16) ** 2))
+        chin = 8.0 * np.exp(-((azimuth / 0.35) ** 2) - (((polar - 2.35) / 0.15) ** 2))
+        return surface + ((nose + chin) * front)[..., None] * direction
+
+    vertices, faces, uv = _surface_of_revolution(point, n_polar, n_azimuth)
+    vertices = scale * vertices
+    return trimesh.Trimesh(
+        vertices, faces, vertex_normals=_smooth_normals(vertices, faces),
+        visual=trimesh.visual.TextureVisuals(uv=uv), process=False,
+    )  # fmt: skip
+
+
+def cylinder(radius: float, height: float, n_azimuth: int = 128, n_height: int = 16) -> trimesh.Trimesh:
+    """An open cylinder (mm) around +y, centred at the origin: u around (0.5 at +z), v along +y (0 at the bottom)."""
+    azimuth = np.linspace(-np.pi, np.pi, n_azimuth + 1)
+    y = np.linspace(-height / 2.0, height / 2.0, n_height + 1)
+    yy, aa = np.meshgrid(y, azimuth, indexing="ij")
+    normals = np.stack([np.sin(aa), np.zeros_like(aa), np.cos(aa)], axis=-1).reshape(-1, 3)
+    vertices = (radius * normals.reshape((*yy.shape, 3)) + np.stack([0 * yy, yy, 0 * yy], -1)).reshape(-1, 3)
+    uv = np.stack([0.5 + aa / (2.0 * np.pi), (yy + height / 2.0) / height], axis=-1).reshape(-1, 2)
+    row = n_azimuth + 1
+    i, j = np.meshgrid(np.arange(n_height), np.arange(n_azimuth), indexing="ij")
+    v00 = (i * row + j).ravel()
+    faces = np.concatenate([np.stack([v00, v00 + 1, v00 + row + 1], -1), np.stack([v00, v00 + row + 1, v00 + row], -1)])
+    return trimesh.Trimesh(
+        vertices, faces, vertex_normals=normals, visual=trimesh.visual.TextureVisuals(uv=uv), process=False
+    )

@@ -197,3 +197,25 @@ def test_bad_input_raises_value_error():
         render([table] * (MAX_LAYERS + 1), [0.01] * (MAX_LAYERS + 1), [0.5, 0.5, 0.5])
     with pytest.raises(ValueError, match="increasing"):
         render([LayerTable(THICKNESS_MM[::-1], table.r0, table.t)], [0.01], [0.5, 0.5, 0.5])
+
+
+def test_every_layer_reads_its_own_thickness_map():
+    """Three layers, each with a map of its own (left/right, top/bottom, uniform-valued): each quadrant composes the
+    thicknesses its maps give it."""
+    tables = [make_table(40), make_table(41), make_table(42)]
+    substrate = np.array([0.6, 0.4, 0.3])
+    left_right = np.full((8, 8), 0.003)
+    left_right[:, 4:] = 0.04
+    top_bottom = np.full((8, 8), 0.035)
+    top_bottom[4:] = 0.006  # the bottom half of the map (rows 4 .. 7) at v < 0.5
+    constant = np.full((4, 4), 0.02)
+    image = render(tables, [left_right, top_bottom, constant], substrate)
+    rows, columns = np.arange(SIZE)[:, None], np.arange(SIZE)[None, :]
+    for (lr, tb), region in (
+        ((0.003, 0.035), (rows < 28) & (columns < 28)),
+        ((0.04, 0.035), (rows < 28) & (columns >= 36)),
+        ((0.003, 0.006), (rows >= 36) & (columns < 28)),
+        ((0.04, 0.006), (rows >= 36) & (columns >= 36)),
+    ):
+        expected = reference(tables, [lr, tb, 0.02], substrate) * RADIANCE
+        assert_card_equals(image, expected, np.broadcast_to(region, (SIZE, SIZE)))
