@@ -29,16 +29,14 @@ def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
 def head_makeup(rows: int = 512, columns: int = 512) -> np.ndarray:
     """The cosmetic map of :func:`renderer.meshes.head`: float (rows, columns, 3) in [0, 1].
 
-    Foundation: the face (u 0.33 .. 0.67, v 0.28 .. 0.7), full inside and fading over 0.03 of uv at its border;
+    Foundation: the face, an ellipse at u = 0.5, v = 0.47 (half-axes 0.15 x 0.2), full inside and fading over its
+    outer fifth;
     blush: a soft Gaussian on each cheek (u = 0.5 +- 0.085, v = 0.44, standard deviations 0.03 x 0.04); lipstick:
     the lips, an ellipse at u = 0.5, v = 0.31 (half-axes 0.045 x 0.016) with an edge of 0.004.
     """
     u, v = _uv_grid(rows, columns)
-    face = (
-        (1.0 - _smoothstep(0.14, 0.17, np.abs(u - 0.5)))
-        * _smoothstep(0.28, 0.31, v)
-        * (1.0 - _smoothstep(0.67, 0.7, v))
-    )
+    face_radius = np.sqrt(((u - 0.5) / 0.15) ** 2 + ((v - 0.47) / 0.2) ** 2)
+    face = 1.0 - _smoothstep(0.8, 1.0, face_radius)
     cheeks = sum(np.exp(-0.5 * (((u - c) / 0.03) ** 2 + ((v - 0.44) / 0.04) ** 2)) for c in (0.415, 0.585))
     lips_radius = np.sqrt(((u - 0.5) / 0.045) ** 2 + ((v - 0.31) / 0.016) ** 2)
     lips = 1.0 - _smoothstep(1.0 - 0.004 / 0.016, 1.0, lips_radius)

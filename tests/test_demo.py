@@ -30,18 +30,21 @@ def test_the_demo_measures_fits_validates_and_renders(tmp_path):
     summary = json.loads((out / "reports" / "summary.json").read_text(encoding="utf-8"))
     assert {entry["sample"]: entry["verdict"] for entry in summary}["F1"] == "pass"
     assert (out / "reports" / "index.html").exists()
-    # Rendering: 8 turntable frames per product, their headers, and a sheet of 3 rows x 4 columns.
+    # Rendering: 8 turntable frames per product, their headers, and a sheet of 4 rows x 4 columns.
     from renderer.contact_sheet import sheet_layout
     from renderer.image_io import read_header, read_png
 
-    for scene, shade in (("F1_compact", "F1"), ("B1_compact", "B1"), ("L1_lipstick", "L1")):
+    for scene, shade in (("F1_compact", "F1"), ("B1_compact", "B1"), ("L1_lipstick", "L1"), ("face", "F1 + B1 + L1")):
         frames = sorted((out / "render" / scene).glob("frame_*.exr"))
         assert len(frames) == 8 and len(list((out / "render" / scene).glob("frame_*.png"))) == 8
         header = read_header(frames[2])
         assert header["shade"] == shade and header["camera_azimuth_deg"] == 90.0
     layout = sheet_layout(
-        ["Foundation compact · F1", "Blush compact · B1", "Lipstick · L1"],
+        ["Foundation compact · F1", "Blush compact · B1", "Lipstick · L1", "Full face · F1 + B1 + L1"],
         ["0°", "90°", "180°", "270°"],
         header="Demo line · D65 · date",  # the layout depends on whether there is a header, not on its text
     )
     assert read_png(out / "sheet.png").shape == (layout.height, layout.width, 3)
+    assert read_header(out / "render" / "face" / "frame_000.exr")["subsurface_scattering"].startswith("alpha 1")
+    assert len(list((out / "render" / "face" / "no_sss").glob("frame_*.exr"))) == 8
+    assert (out / "render" / "face" / "ab_sss.png").is_file()

@@ -128,18 +128,20 @@ def test_render_matches_golden(renders, scene):
         assert not differences(image, golden), f"{scene} frame {i}: {differences(image, golden)}"
 
 
-@pytest.mark.parametrize(("scene", "mode"), [("compact", None), ("lipstick", "exact"), ("wedge", "bands:12")])
+@pytest.mark.parametrize(
+    ("scene", "mode"), [("compact", None), ("lipstick", "exact"), ("wedge", "bands:12"), ("face", None)]
+)
 def test_golden_headers(staged, scene, mode):
     loaded = load_scene(staged / f"{scene}.toml")
-    mode = mode or plan_scene(loaded).mode  # compact: the planner's default choice, which the golden must still match
+    mode = mode or plan_scene(loaded).mode  # the planner's default choice, which the golden must still match
+    angles = loaded.turntable_angles_deg() * (2 if scene in make_golden.AB_SCENES else 1)  # with, then without SSS
     for i, (golden, header) in enumerate(goldens(scene)):
         assert golden.shape == (96, 96, 3)
         assert header["render_mode"] == mode, f"{scene}: golden made in {header['render_mode']}; regenerate it"
         assert header["product"] == loaded.product and header["shade"] == loaded.shade
         hashes = header["material_sha256"].split(", ")
         assert len(hashes) == len(loaded.materials) and all(len(h) == 64 for h in hashes)
-        turn = loaded.turntable_angles_deg()[i]
-        assert header["camera_azimuth_deg"] == pytest.approx((loaded.info.camera.azimuth_deg + turn) % 360.0)
+        assert header["camera_azimuth_deg"] == pytest.approx((loaded.info.camera.azimuth_deg + angles[i]) % 360.0)
 
 
 @pytest.mark.parametrize("scene", make_golden.SCENES)
@@ -201,3 +203,23 @@ def test_comparison_rejects_a_3_percent_brighter_light(staged, tmp_path):
     frames = [p for p in render_scene(brighter, tmp_path, echo=lambda _: None) if p.suffix == ".exr"]
     for frame, (golden, _) in zip(frames, goldens("compact"), strict=True):
         assert differences(read_exr(frame)[0], golden), "a 3 % brighter key light passed as the golden"
+
+
+def test_face_scattering_moves_skin_light_without_making_or_losing_it(staged, renders):
+    """With and without subsurface scattering (goldens and fresh renders): the blur visibly changes the skin, but
+    the image's total light agrees to 1 % (the blur redistributes the skin's light; weights sum to 1)."""
+    scene = load_scene(staged / "face.toml")
+    for with_sss, without in ((renders["face"][0], renders["face"][1]), (goldens("face")[0][0], goldens("face")[1][0])):
+        assert np.abs(with_sss - without).max() > 0.01
+        np.testing.assert_allclose(with_sss.sum(axis=(0, 1)), without.sum(axis=(0, 1)), rtol=0.01)
+    headers = [header for _, header in goldens("face")]
+    assert headers[0]["subsurface_scattering"].startswith("alpha 8")
+    assert headers[1]["subsurface_scattering"].startswith("off")
+    # The lips (the cosmetic map's lipstick ellipse at u = 0.5, v = 0.31) are red: L1 over the foundation.
+    from renderer.meshes import head
+
+    mesh = head()
+    uv = np.asarray(mesh.visual.uv)
+    lips = np.asarray(mesh.vertices)[np.argmin(np.hypot(uv[:, 0] - 0.5, uv[:, 1] - 0.31))]
+    red, green, blue = patch(renders["face"][1], to_pixels(scene, [lips])[0])
+    assert red > 2.0 * green and red > 2.0 * blue

@@ -16,8 +16,10 @@ import numpy as np
 
 GOLDEN = Path(__file__).resolve().parent
 REPO = GOLDEN.parents[2]
-SCENES = ("compact", "lipstick", "wedge")
-MATERIALS = ("F1", "F2", "L1", "L2")
+SCENES = ("compact", "lipstick", "wedge", "face")
+#: Scenes rendered with and without subsurface scattering (kmpipe render --ab-sss): frame 000 with, 001 without.
+AB_SCENES = ("face",)
+MATERIALS = ("F1", "F2", "B1", "L1", "L2")
 #: The wedge's thickness map: a left-to-right ramp, 16-bit, WEDGE_SIZE = (width, height).
 WEDGE_SIZE = (64, 8)
 
@@ -33,7 +35,8 @@ def write_wedge(path: Path) -> None:
 
 
 def stage(folder: Path) -> Path:
-    """Fit the sample materials into ``folder/materials`` and copy the scene files and wedge.png beside them."""
+    """Fit the sample materials into ``folder/materials`` and copy the scene files, wedge.png and the head's
+    cosmetic map (recipes/scenes/head_makeup.png) beside them."""
     from kmpipe import cli
 
     (folder / "materials").mkdir(parents=True, exist_ok=True)
@@ -41,7 +44,8 @@ def stage(folder: Path) -> Path:
         manifest = REPO / "recipes" / "samples" / name / "manifest.toml"
         if cli.main(["fit", str(manifest), "-o", str(folder / "materials" / f"{name}.json")]) != 0:
             raise RuntimeError(f"kmpipe fit {manifest} failed")
-    for source in [*(GOLDEN / f"{scene}.toml" for scene in SCENES), GOLDEN / "wedge.png"]:
+    sources = [*(GOLDEN / f"{scene}.toml" for scene in SCENES), GOLDEN / "wedge.png"]
+    for source in [*sources, REPO / "recipes" / "scenes" / "head_makeup.png"]:
         shutil.copy(source, folder / source.name)
     return folder
 
@@ -50,7 +54,8 @@ def render(staged: Path, scene: str, out_dir: Path) -> list[Path]:
     """Render ``scene`` from a :func:`stage` folder into ``out_dir``; its EXR frames in order."""
     from kmpipe.render import render_scene
 
-    return [p for p in render_scene(staged / f"{scene}.toml", out_dir, echo=lambda _: None) if p.suffix == ".exr"]
+    written = render_scene(staged / f"{scene}.toml", out_dir, ab_scattering=scene in AB_SCENES, echo=lambda _: None)
+    return [p for p in written if p.suffix == ".exr"]
 
 
 def golden_paths(scene: str) -> list[Path]:
