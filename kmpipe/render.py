@@ -146,6 +146,13 @@ def _skin_notes(scene: Scene) -> list[str]:
     return notes
 
 
+def layer_lobes(scene: Scene) -> list:
+    """The films' specular lobes (renderer Specular or None), top first."""
+    from renderer.layers import Specular
+
+    return [None if layer.specular is None else Specular(**layer.specular.model_dump()) for layer in scene.info.layer]
+
+
 def skin_lobe(scene: Scene):
     """The skin's own specular lobe (renderer Specular), or None."""
     from renderer.layers import Specular
@@ -327,7 +334,7 @@ def render_scene(
     Returns the files written, EXR and PNG of each frame in order (then the A/B frames and sheet).
     """
     from renderer.image_io import write_exr, write_png
-    from renderer.layers import Specular, render_layers
+    from renderer.layers import render_layers
     from renderer.skin import render_skin
     from renderer.tone_map import tone_map
 
@@ -344,7 +351,7 @@ def render_scene(
         echo(plan.explain())
     stack = _stack_input(plan, scene)
     info = scene.info
-    specular = [None if layer.specular is None else Specular(**layer.specular.model_dump()) for layer in info.layer]
+    specular = layer_lobes(scene)
     lights, camera = _lights(scene, plan), camera_for(scene)
     ground = _ground(scene)
     width, height = info.scene.resolution

@@ -28,8 +28,9 @@
 //
 // Split mode (u_split = 1, the skin pass of renderer.skin): the light that entered the substrate and came back out,
 // E v cos (R_rgb - R_black) with R_black the stack's reflectance over a black substrate, goes to f_skin (to be blurred
-// by subsurface scattering); everything else, E v cos (R_black + pi sum A f), to f_colour; f_depth holds the
-// view-space depth (mm) and a skin mask (1 where u_skin = 1). Without a blur, f_colour + f_skin = colour.
+// by subsurface scattering) with the skin mask in its alpha (1 where u_skin = 1); everything else,
+// E v cos (R_black + pi sum A f), to f_colour; f_depth holds the view-space depth (mm). Without a blur,
+// f_colour + f_skin = colour.
 //
 // Table texture layout (RGBA32F, read with texelFetch, one texel column per thickness sample):
 //   rows 0 .. G-1      R0 of channel group g (channels 4g .. 4g+3)
@@ -264,6 +265,6 @@ void main() {
         skin += incident * (reflectance - over_black);
     }
     f_colour = vec4(colour, 1.0);
-    f_skin = vec4(split ? skin : vec3(0.0), 1.0);
-    f_depth = vec4(v_view_depth, split ? 1.0 : 0.0, 0.0, 1.0);
+    f_skin = split ? vec4(skin, 1.0) : vec4(0.0);  // alpha: the skin mask
+    f_depth = vec4(v_view_depth, 0.0, 0.0, 1.0);
 }

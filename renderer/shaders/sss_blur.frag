@@ -2,12 +2,13 @@
 // One separable pass of screen-space subsurface scattering (Jimenez et al. 2009; thesis section 3.2).
 //
 // A 7-tap Gaussian along u_direction (1, 0) or (0, 1) of the skin irradiance u_source, restricted to skin pixels
-// (mask in u_depth.g). The taps lie at k / 3 of the kernel's reach w (pixels), k = -3 .. 3, with weights 0.006,
+// (the skin mask rides in u_source's alpha, 1 on skin, so that a tap is one texture fetch). The taps lie at k / 3 of the kernel's reach w (pixels), k = -3 .. 3, with weights 0.006,
 // 0.061, 0.242, 0.382, 0.242, 0.061, 0.006 (a Gaussian of standard deviation w / 3 sampled at -3 .. 3 deviations).
 // The reach follows the stretch S of eqs. 3.1 and 3.2:
 //   S = alpha / (d + beta * min(|grad d|, clamp)),   w = 3 * width * S * c
 // with width = sqrt(v_i - v_(i-1)) (mm) the widening of this Gaussian of the skin profile, d the view depth in metres
-// (1 for an orthographic camera), grad d its change to the next pixel along the pass's direction (metres) and c the
+// (1 for an orthographic camera), grad d its larger change to either neighbour along the pass's direction
+// (metres; at the image's border the pixel itself stands in for the missing neighbour) and c the
 // camera's scale: pixels per mm at 1 m (perspective: the focal length in pixels / 1000; orthographic: pixels per mm).
 // With beta = 0, alpha = 1 makes w / 3 the Gaussian's true projected standard deviation: alpha is the scale of the
 // blur against the measured skin profile.
@@ -17,8 +18,8 @@
 
 in vec2 v_uv;
 
-uniform sampler2D u_source;   // RGB: light that entered the skin and came back out (linear)
-uniform sampler2D u_depth;    // r: view depth (mm), g: skin mask (1 on skin)
+uniform sampler2D u_source;   // RGB: light that entered the skin and came back out (linear); A: skin mask
+uniform sampler2D u_depth;    // r: view depth (mm)
 uniform vec2 u_direction;     // (1, 0): horizontal, (0, 1): vertical
 uniform vec2 u_pixel;         // size of a pixel in uv
 uniform float u_width;        // sqrt of the variance added by this Gaussian, mm
@@ -34,25 +35,26 @@ layout(location = 1) out vec4 f_accumulate;  // the same, for the accumulator (a
 const float WEIGHTS[7] = float[7](0.006, 0.061, 0.242, 0.382, 0.242, 0.061, 0.006);
 
 void main() {
-    vec4 centre = texture(u_source, v_uv);
-    vec2 depth_mask = texelFetch(u_depth, ivec2(gl_FragCoord.xy), 0).rg;
-    if (depth_mask.g < 0.5) {
+    vec4 centre = texelFetch(u_source, ivec2(gl_FragCoord.xy), 0);
+    if (centre.a < 0.5) {
         f_colour = centre;
         f_accumulate = centre;
         return;
     }
-    float depth = depth_mask.r * 1e-3;
-    float neighbour = texelFetch(u_depth, ivec2(gl_FragCoord.xy + u_direction), 0).r * 1e-3;
-    float gradient = abs(neighbour - depth);
+    ivec2 here = ivec2(gl_FragCoord.xy);
+    ivec2 last = textureSize(u_depth, 0) - 1;
+    ivec2 offset = ivec2(u_direction);
+    float depth = texelFetch(u_depth, here, 0).r * 1e-3;
+    float next = texelFetch(u_depth, clamp(here + offset, ivec2(0), last), 0).r * 1e-3;
+    float previous = texelFetch(u_depth, clamp(here - offset, ivec2(0), last), 0).r * 1e-3;
+    float gradient = max(abs(next - depth), abs(depth - previous));  // steeper side (a silhouette: the clamp)
     float d = u_orthographic == 1 ? 1.0 : depth;
     float reach = 3.0 * u_width * u_scale * u_alpha / (d + u_beta * min(gradient, u_clamp));
     vec2 step_uv = u_direction * u_pixel;
     vec3 sum = vec3(0.0);
     for (int k = 0; k < 7; ++k) {
-        vec2 uv = v_uv + float(k - 3) / 3.0 * reach * step_uv;
-        vec3 tap = texture(u_source, uv).rgb;
-        float on_skin = texture(u_depth, uv).g;
-        sum += WEIGHTS[k] * (on_skin >= 1.0 ? tap : centre.rgb);
+        vec4 tap = texture(u_source, v_uv + float(k - 3) / 3.0 * reach * step_uv);
+        sum += WEIGHTS[k] * (tap.a > 0.999 ? tap.rgb : centre.rgb);  // filtered mask: skin on both texels
     }
     f_colour = vec4(sum, 1.0);
     f_accumulate = f_colour;
