@@ -42,8 +42,3 @@ def head_makeup(rows: int = 512, columns: int = 512) -> np.ndarray:
     lips = 1.0 - _smoothstep(1.0 - 0.004 / 0.016, 1.0, lips_radius)
     return np.clip(np.stack([face, cheeks, lips], axis=-1), 0.0, 1.0)
 
-
-def band(rows: int, columns: int, u_range: tuple[float, float]) -> np.ndarray:
-    """A test map: 1 where u_range[0] <= u < u_range[1], else 0; float (rows, columns), row 0 at the top."""
-    u, _ = _uv_grid(rows, columns)
-    return ((u >= u_range[0]) & (u < u_range[1])).astype(float)
