@@ -18,13 +18,14 @@ import bench_fit_grid
 import bench_inversion
 import bench_render
 import bench_render_modes
+import bench_skin
 import numpy as np
 from common import REPO, Table, machine
 
 COMMAND = ".venv/bin/python benchmarks/run_all.py"
 
 
-def _summary(inversion: dict, fit: dict) -> Table:
+def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, skin_rows: list) -> Table:
     rows = []
     for t in inversion["timings"]:
         if t.data != "noisy":
@@ -37,7 +38,20 @@ def _summary(inversion: dict, fit: dict) -> Table:
         median_ms = float(np.median(v.times_ms))
         rows.append([f"joint fit ({v.name}): ms per sample", "<= 50", f"{median_ms:.1f}",
                      "yes" if median_ms <= bench_fit.TARGET_MS else "no"])
-    return Table("Targets (noisy readings)", ["quantity", "target", "measured", "met"], rows, [])
+    turntable = max(float(r[2]) for r in render_rows if r[1] == "512 x 512")
+    rows.append(["36-frame turntable at 512 x 512, slowest mode: s", "< 10", f"{turntable:.1f}",
+                 "yes" if turntable < 10.0 else "no"])
+    for r in mode_rows:
+        if r[0].startswith("default"):
+            rows.append([f"default render mode, mean dE00 against exact ({r[1]})", "< 0.5", r[2],
+                         "yes" if float(r[2]) < 0.5 else "no"])
+    for r in skin_rows:
+        if r[1] == "512 x 512":
+            seconds = float(r[5]) / 1e3
+            rows.append([f"frame on skin, 3 layers, shadows, SSS at 512 x 512 ({r[0]}): s", "< 0.3", f"{seconds:.3f}",
+                         "yes" if seconds < bench_skin.TARGET_S else "no"])
+    return Table("Targets", ["quantity", "target", "measured", "met"], rows,
+                 ["inversion and fit rows on noisy readings"])
 
 
 def main() -> None:
@@ -75,14 +89,21 @@ def main() -> None:
 
     print("render modes ...", file=sys.stderr, flush=True)
     clock = time.perf_counter()
-    parts.append(("Render modes", bench_render_modes.tables(bench_render_modes.run()), time.perf_counter() - clock))
+    mode_rows = bench_render_modes.run()
+    parts.append(("Render modes", bench_render_modes.tables(mode_rows), time.perf_counter() - clock))
 
     print("rendering ...", file=sys.stderr, flush=True)
     clock = time.perf_counter()
-    parts.append(("Rendering", bench_render.tables(bench_render.run()), time.perf_counter() - clock))
+    render_rows = bench_render.run()
+    parts.append(("Rendering", bench_render.tables(render_rows), time.perf_counter() - clock))
+
+    print("makeup on skin ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    skin_rows = bench_skin.run()
+    parts.append(("Makeup on skin", bench_skin.tables(skin_rows), time.perf_counter() - clock))
     total = time.perf_counter() - started
 
-    summary = _summary(inversion, fit)
+    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows)
     summary.print()
     for _, tables, _ in parts:
         for table in tables:
@@ -92,7 +113,7 @@ def main() -> None:
     lines = [
         "# Benchmarks",
         "",
-        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes and rendering,",
+        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering and skin,",
         "on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",

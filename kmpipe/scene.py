@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -317,64 +318,75 @@ def _mesh(name: str, base: Path) -> tuple[trimesh.Trimesh, np.ndarray]:
     return products.load_mesh(base / name), np.eye(4)
 
 
+#: Where a field of a scene is, for error messages: loc (as pydantic gives it) -> InputError's path, line, field.
+Locator = Callable[[tuple], dict]
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read and check a scene file, its materials and its mesh; InputError naming the file, line and field."""
     path = Path(path)
     text, data = read_toml(path, "scene file")
+
+    def where(loc: tuple) -> dict:
+        return {"path": path, "line": toml_line(text, loc), "field": format_field(loc)}
+
+    return build_scene(data, path, path.parent, where)
+
+
+def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
+    """Check scene data (a parsed scene file, or one a recipe composed) and load its materials, maps and mesh.
+
+    Relative paths are resolved against ``base``; ``path`` names the scene in the frames' headers; ``where`` turns
+    a field's location into the file, line and field an InputError names.
+    """
     try:
         info = SceneFile.model_validate(data)
     except ValidationError as err:
         first = first_validation_error(err)
         loc = tuple(first["loc"])
         message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
-        raise InputError(message, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
+        raise InputError(message, **where(loc)) from None
 
-    base = path.parent
     materials, thicknesses, hashes, sources = [], [], [], {}
     for i, layer in enumerate(info.layer):
-        where = {"path": path, "line": toml_line(text, ("layer", i, "material")), "field": f"layer[{i + 1}].material"}
+        at = where(("layer", i, "material"))
         material_path = base / layer.material
         if not material_path.is_file():
             what = "does not exist" if not material_path.exists() else "is not a file"
-            raise InputError(f"names the material file {material_path}, which {what}", **where)
+            raise InputError(f"names the material file {material_path}, which {what}", **at)
         material = read_material(material_path)
         if material.wavelengths is None:
-            raise InputError(f"{material_path} holds camera channels; rendering needs spectral K and S", **where)
+            raise InputError(f"{material_path} holds camera channels; rendering needs spectral K and S", **at)
         previous = sources.setdefault(material.name, material_path.resolve())
         if previous != material_path.resolve():
-            raise InputError(f"{material_path} and {previous} both hold a material named {material.name!r}", **where)
+            raise InputError(f"{material_path} and {previous} both hold a material named {material.name!r}", **at)
         if materials and not np.array_equal(material.wavelengths, materials[0].wavelengths):
             raise InputError(
                 f"{material_path} is on another wavelength grid than {info.layer[0].material}; fit them on one grid",
-                **where,
+                **at,
             )
         materials.append(material)
         hashes.append(hashlib.sha256(material_path.read_bytes()).hexdigest())
         if layer.thickness is not None:
             thicknesses.append(parse_thickness_mm(layer.thickness, allow_zero=True))
         else:
-            thicknesses.append(_thickness_map(layer.thickness_map, base, path, text, i))
+            thicknesses.append(_thickness_map(layer.thickness_map, base, where(("layer", i, "thickness_map"))))
 
     try:
         mesh, model = _mesh(info.scene.mesh, base)
     except ValueError as err:
         raise InputError(
-            f"{err} (expected one of {', '.join(BUILTIN_MESHES)} or a mesh file)",
-            path=path,
-            line=toml_line(text, ("scene", "mesh")),
-            field="scene.mesh",
+            f"{err} (expected one of {', '.join(BUILTIN_MESHES)} or a mesh file)", **where(("scene", "mesh"))
         ) from None
     key = "skin" if info.skin is not None else "substrate"
-    where = {"path": path, "line": toml_line(text, (key, "reflectance")), "field": f"{key}.reflectance"}
-    substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where)
+    substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where((key, "reflectance")))
     return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, mesh, model)
 
 
-def _thickness_map(info: ThicknessMapInfo, base: Path, path: Path, text: str, index: int) -> np.ndarray:
-    """The thickness map of layer ``index`` in mm: min + value * (max - min), value the image channel in [0, 1]."""
+def _thickness_map(info: ThicknessMapInfo, base: Path, where: dict) -> np.ndarray:
+    """A layer's thickness map in mm: min + value * (max - min), value the image channel in [0, 1]."""
     from renderer.image_io import read_channel
 
-    where = {"path": path, "line": toml_line(text, ("layer", index, "thickness_map")), "field": f"layer[{index + 1}]"}
     image_path = base / info.file
     if not image_path.is_file():
         raise InputError(f"names the thickness map {image_path}, which does not exist", **where)
