@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from kmpipe.albedo_texture import basis_spectra, texture_weights
 from kmpipe.errors import InputError
 from kmpipe.optical_tables import Stack, exact_stack, parse_mode, working_space
 from kmpipe.render_plan import RenderPlan, plan_render
@@ -135,6 +136,8 @@ def _skin_notes(scene: Scene) -> list[str]:
         f"skin: {skin.reflectance}; its own lobe "
         + ("none" if lobe is None else f"roughness {lobe.roughness:g}, F0 {lobe.f0:.3f}")
     ]
+    if skin.albedo_texture is not None:
+        notes.append(f"albedo texture: {skin.albedo_texture} (spectra per texel from the skin's; modes planned on it)")
     scattering = skin_scattering(scene)
     if scattering is None:
         notes.append("subsurface scattering: off (the skin's light is not blurred)")
@@ -175,7 +178,11 @@ def skin_scattering(scene: Scene, enabled: bool = True):
 
 
 def _stack_input(plan: ScenePlan, scene: Scene):
-    """The layer pass's stack: a ChannelStack from the planned tables, or a Precomposed stack in exact mode."""
+    """The layer pass's stack: a ChannelStack from the planned tables, or a Precomposed stack in exact mode.
+
+    With an albedo texture the substrate is a per-texel mix of three basis spectra (:mod:`kmpipe.albedo_texture`),
+    reduced to the mode's channels like the films.
+    """
     from renderer.layers import ChannelStack, LayerTable, Precomposed
 
     kind, _ = parse_mode(plan.mode)
@@ -184,56 +191,70 @@ def _stack_input(plan: ScenePlan, scene: Scene):
         return Precomposed(*_precompose(scene, substrate))
     tables = plan.tables.build_tables({m.name: m for m in scene.materials})
     first = tables[scene.materials[0].name]
-    if kind == "rgb":
-        substrate_channels, to_rgb = substrate @ first.space.matrix, None
-    else:
-        substrate_channels, to_rgb = substrate @ first.bands.averaging, first.bands.to_rgb
+    reduce = first.space.matrix if kind == "rgb" else first.bands.averaging
+    to_rgb = None if kind == "rgb" else first.bands.to_rgb
+    substrate_map = None
+    if scene.albedo is not None:
+        basis = basis_spectra(substrate, first.space)
+        substrate_map = (texture_weights(scene.albedo, basis, first.space), basis @ reduce)
     layer_tables = []
     for material in scene.materials:
         table = tables[material.name]
         x = table.single_thickness_mm if table.thickness_mm is None else table.thickness_mm
         layer_tables.append(LayerTable(x, np.clip(table.R0, 0.0, 1.0), np.clip(table.T, 0.0, 1.0)))
-    return ChannelStack(layer_tables, list(scene.thicknesses_mm), np.clip(substrate_channels, 0.0, 1.0), to_rgb)
+    substrate_channels = np.clip(substrate @ reduce, 0.0, 1.0)
+    return ChannelStack(layer_tables, list(scene.thicknesses_mm), substrate_channels, to_rgb, substrate_map)
+
+
+def _on_grid(value: np.ndarray, rows: int, columns: int) -> np.ndarray:
+    """A 2-D (or 2-D x channels) map resampled bilinearly to rows x columns (as it is if it has that size)."""
+    import cv2
+
+    if value.shape[:2] == (rows, columns):
+        return value
+    return cv2.resize(value, (columns, rows), interpolation=cv2.INTER_LINEAR)
 
 
 def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact mode: reflectance and over-black reflectance (3,), attenuation (n + 1, 3), or all over the grid of the
-    thickness maps (see :func:`kmpipe.optical_tables.exact_stack`).
+    thickness maps and the albedo texture (see :func:`kmpipe.optical_tables.exact_stack`).
 
-    Maps of other sizes than the first are resampled to its grid (bilinear). Only distinct thickness combinations
-    are composed, in chunks, so a large map of few levels costs little.
+    Maps of other sizes than the first are resampled to its grid (bilinear). Only distinct combinations of
+    thicknesses (and albedo weights) are composed, in chunks, so a large map of few levels costs little.
     """
-    import cv2
-
     space = working_space(scene.wavelengths, scene.info.scene.illuminant)
     maps = [np.asarray(x, dtype=float) for x in scene.thicknesses_mm if np.ndim(x) == 2]
+    if scene.albedo is not None:
+        maps.append(scene.albedo)
     if not maps:
         return exact_stack(scene.materials, list(scene.thicknesses_mm), substrate, space)
-    rows, columns = maps[0].shape
-    grids = []
-    for x in scene.thicknesses_mm:
-        value = np.asarray(x, dtype=float)
-        if value.ndim == 0:
-            grids.append(np.full((rows, columns), float(value)))
-        elif value.shape != (rows, columns):
-            grids.append(cv2.resize(value, (columns, rows), interpolation=cv2.INTER_LINEAR))
-        else:
-            grids.append(value)
-    combinations, inverse = np.unique(np.stack([g.ravel() for g in grids], axis=1), axis=0, return_inverse=True)
+    rows, columns = maps[0].shape[:2]
+    columns_of_grid = [_on_grid(np.broadcast_to(np.asarray(x, float), (rows, columns)) if np.ndim(x) == 0
+                                else np.asarray(x, float), rows, columns).reshape(rows * columns, 1)
+                       for x in scene.thicknesses_mm]  # fmt: skip
+    n_layers = len(columns_of_grid)
+    basis = None
+    if scene.albedo is not None:
+        basis = basis_spectra(substrate, space)
+        weights = texture_weights(_on_grid(scene.albedo, rows, columns), basis, space)
+        columns_of_grid.append(weights.reshape(rows * columns, 3))
+    combinations, inverse = np.unique(np.hstack(columns_of_grid), axis=0, return_inverse=True)
     reflectance = np.empty((len(combinations), 3))
     over_black = np.empty((len(combinations), 3))
-    attenuation = np.empty((len(grids) + 1, len(combinations), 3))
+    attenuation = np.empty((n_layers + 1, len(combinations), 3))
     chunk = 16384
     for start in range(0, len(combinations), chunk):
-        part = slice(start, start + chunk)
-        reflectance[part], over_black[part], attenuation[:, part] = exact_stack(
-            scene.materials, list(combinations[part].T), substrate, space
+        part = combinations[start : start + chunk]
+        under = substrate if basis is None else np.clip(part[:, n_layers:] @ basis, 0.0, 1.0)
+        rows_done = slice(start, start + chunk)
+        reflectance[rows_done], over_black[rows_done], attenuation[:, rows_done] = exact_stack(
+            scene.materials, list(part[:, :n_layers].T), under, space
         )
     inverse = inverse.ravel()
     return (
         reflectance[inverse].reshape(rows, columns, 3),
         over_black[inverse].reshape(rows, columns, 3),
-        attenuation[:, inverse].reshape(len(grids) + 1, rows, columns, 3),
+        attenuation[:, inverse].reshape(n_layers + 1, rows, columns, 3),
     )
 
 

@@ -82,6 +82,8 @@ class SceneInfo(_Strict):
 
 class SubstrateInfo(_Strict):
     reflectance: float | str
+    albedo_texture: str | None = None
+    albedo_encoding: Literal["srgb", "linear"] | None = None
 
     @field_validator("reflectance")
     @classmethod
@@ -219,7 +221,8 @@ class Scene:
 
     ``thicknesses_mm`` holds, per layer (top first), a number (uniform thickness, mm) or a 2-D array (a thickness
     map over the mesh's uv, mm, row 0 at v = 1). ``material_hashes`` are the SHA-256 of the material files.
-    ``substrate`` is the spectral reflectance of the substrate or skin on the materials' wavelength grid.
+    ``substrate`` is the spectral reflectance of the substrate or skin on the materials' wavelength grid;
+    ``albedo`` its albedo texture, linear RGB (rows, columns, 3) over uv (row 0 at v = 1), or None.
     """
 
     path: Path
@@ -228,6 +231,7 @@ class Scene:
     thicknesses_mm: tuple[float | np.ndarray, ...]
     material_hashes: tuple[str, ...]
     substrate: np.ndarray
+    albedo: np.ndarray | None
     mesh: trimesh.Trimesh
     model: np.ndarray
 
@@ -380,7 +384,32 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
         ) from None
     key = "skin" if info.skin is not None else "substrate"
     substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where((key, "reflectance")))
-    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, mesh, model)
+    albedo = None
+    if info.base.albedo_texture is not None:
+        albedo = _albedo(info.base, base, where((key, "albedo_texture")))
+    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, albedo, mesh, model)
+
+
+def _albedo(info: SubstrateInfo, base: Path, where: dict) -> np.ndarray:
+    """The albedo texture as linear RGB (rows, columns, 3): sRGB-decoded unless linear (EXR and HDR by default)."""
+    from renderer.image_io import read_pixels
+
+    path = base / info.albedo_texture
+    if not path.is_file():
+        raise InputError(f"names the albedo texture {path}, which does not exist", **where)
+    try:
+        image, _ = read_pixels(path)
+    except OSError as err:
+        raise InputError(f"cannot read the albedo texture: {err}", **where) from None
+    if image.shape[2] < 3 or not np.all(np.isfinite(image[..., :3])) or image[..., :3].min() < 0.0:
+        raise InputError(f"{path}: an albedo texture needs finite, non-negative R, G and B channels", **where)
+    encoding = info.albedo_encoding or ("linear" if path.suffix.lower() in (".exr", ".hdr") else "srgb")
+    rgb = image[..., :3]
+    if encoding == "srgb":
+        rgb = colour.models.eotf_sRGB(np.clip(rgb, 0.0, 1.0))
+    if rgb.max() > 1.0:
+        raise InputError(f"{path}: a linear albedo must lie in [0, 1], found up to {rgb.max():.3g}", **where)
+    return rgb
 
 
 def _thickness_map(info: ThicknessMapInfo, base: Path, where: dict) -> np.ndarray:

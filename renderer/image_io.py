@@ -141,32 +141,39 @@ def read_png(path: str | Path) -> np.ndarray:
     return np.asarray(pixels, dtype=np.uint8).reshape(spec.height, spec.width, spec.nchannels)
 
 
-def read_channel(path: str | Path, channel: str) -> np.ndarray:
-    """One channel of an image file as float64 (height, width), top row first, without any colour decoding.
+def read_pixels(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """An image file's pixels as float64 (height, width, channels), top row first, and its channel names.
 
-    Integer files are normalised to [0, 1] (code / max code); float files (EXR) are read as stored. ``channel`` is a
-    channel name of the file (``R``, ``G``, ``B``, ``A``, ``Y``, ...); a one-channel file answers to any name.
-    Raises :class:`OSError` when the file cannot be read and :class:`ValueError` when it has no such channel.
+    No colour decoding: integer files are normalised to [0, 1] (code / max code), float files (EXR) read as stored.
+    Raises :class:`OSError` when the file cannot be read.
     """
     source = oiio.ImageInput.open(str(path))
     if source is None:
         raise OSError(f"{path}: cannot open: {oiio.geterror()}")
     try:
         spec = source.spec()
-        names = list(spec.channelnames)
-        if spec.nchannels == 1:
-            index = 0
-        elif channel in names:
-            index = names.index(channel)
-        else:
-            raise ValueError(f"{path} has no channel {channel!r} (it has {', '.join(names)})")
         pixels = source.read_image(oiio.FLOAT)
         if pixels is None:
             raise OSError(f"{path}: read failed: {source.geterror()}")
     finally:
         source.close()
     image = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
-    return np.ascontiguousarray(image[..., index])
+    return image, list(spec.channelnames)
+
+
+def read_channel(path: str | Path, channel: str) -> np.ndarray:
+    """One channel of an image file as float64 (height, width), as :func:`read_pixels` reads it.
+
+    ``channel`` is a channel name of the file (``R``, ``G``, ``B``, ``A``, ``Y``, ...); a one-channel file answers
+    to any name. Raises :class:`OSError` when the file cannot be read and :class:`ValueError` when it has no such
+    channel.
+    """
+    image, names = read_pixels(path)
+    if image.shape[2] == 1:
+        return np.ascontiguousarray(image[..., 0])
+    if channel not in names:
+        raise ValueError(f"{path} has no channel {channel!r} (it has {', '.join(names)})")
+    return np.ascontiguousarray(image[..., names.index(channel)])
 
 
 def write_map(path: str | Path, values: np.ndarray) -> None:

@@ -172,12 +172,17 @@ class ChannelStack:
     to_rgb
         (C, 3) matrix converting per-channel reflectance to linear RGB (bands); if omitted C must be 3 and the
         channels are linear RGB.
+    substrate_map
+        A substrate that varies over uv (an albedo texture), overriding ``substrate``: (weights, basis) with
+        weights (rows, columns, 3) over uv (row 0 at v = 1, bilinear) and basis (3, C) reflectances per channel;
+        the substrate at a point is ``clip(weights @ basis, 0, 1)``.
     """
 
     tables: Sequence[LayerTable]
     thicknesses: Sequence[float | np.ndarray]
     substrate: Sequence[float] | np.ndarray
     to_rgb: np.ndarray | None = None
+    substrate_map: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n_layers(self) -> int:
@@ -271,7 +276,21 @@ def _channel_uniforms(stack: ChannelStack) -> dict:
             maps.append(None)
         else:
             maps.append(value)
-    return {"arrays": arrays, "maps": maps, "uniform": uniform, "substrate": substrate, "to_rgb": to_rgb}
+    substrate_map = None
+    if stack.substrate_map is not None:
+        weights, basis = (np.asarray(a, dtype=float) for a in stack.substrate_map)
+        if weights.ndim != 3 or weights.shape[2] != 3 or basis.shape != (3, channels):
+            raise ValueError(
+                f"substrate_map needs weights (rows, columns, 3) and a basis (3, {channels}); got {weights.shape} "
+                f"and {basis.shape}"
+            )
+        if not (np.all(np.isfinite(weights)) and np.all(np.isfinite(basis))):
+            raise ValueError("substrate_map must be finite")
+        substrate_map = (weights, basis)
+    return {
+        "arrays": arrays, "maps": maps, "uniform": uniform, "substrate": substrate, "to_rgb": to_rgb,
+        "substrate_map": substrate_map,
+    }  # fmt: skip
 
 
 def _composite_texels(stack: Precomposed) -> np.ndarray:
@@ -331,10 +350,11 @@ def _world_bounds(draws: Sequence[tuple[trimesh.Trimesh, np.ndarray]]) -> tuple[
     return centre, float(np.max(np.linalg.norm(points - centre, axis=1)))
 
 
-# Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12. Every sampler has a unit
-# of its own (GL forbids samplers of different types on one unit, even unused ones).
+# Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12, the substrate map 13.
+# Every sampler has a unit of its own (GL forbids samplers of different types on one unit, even unused ones).
 _COMPOSITE_UNIT = 2 * MAX_LAYERS
 _SHADOW_UNIT = _COMPOSITE_UNIT + 1
+_SUBSTRATE_UNIT = _SHADOW_UNIT + MAX_LIGHTS
 
 
 def render_layers(
@@ -492,6 +512,7 @@ class SurfacePass:
             GL.glUniform1i(_location(program, f"u_table{index}"), index)
             GL.glUniform1i(_location(program, f"u_map{index}"), MAX_LAYERS + index)
         GL.glUniform1i(_location(program, "u_composite"), _COMPOSITE_UNIT)
+        GL.glUniform1i(_location(program, "u_substrate_map"), _SUBSTRATE_UNIT)
         created: list[int] = []
         try:
             # The product (or the skin).
@@ -531,7 +552,7 @@ class SurfacePass:
 
 
 def _unbind_units() -> None:
-    for unit_index in range(_SHADOW_UNIT + MAX_LIGHTS):
+    for unit_index in range(_SUBSTRATE_UNIT + 1):
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
         GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
         GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
@@ -619,6 +640,13 @@ def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
     GL.glUniform1iv(_location(program, "u_use_map"), MAX_LAYERS, use_map)
     GL.glUniform1fv(_location(program, "u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
     GL.glUniform4fv(_location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
+    basis_groups = np.zeros((3, 4 * (MAX_CHANNELS // 4)))
+    if channel["substrate_map"] is not None:
+        basis_groups[:, :channels] = channel["substrate_map"][1]
+    GL.glUniform1i(_location(program, "u_use_substrate_map"), int(channel["substrate_map"] is not None))
+    GL.glUniform4fv(
+        _location(program, "u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
+    )
     GL.glUniform3fv(_location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
     # Every texture is created first and bound afterwards: creating one binds it to the active unit, which would
     # unbind what an earlier layer had put there.
@@ -632,8 +660,13 @@ def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
             texels[..., 0] = maps[index][::-1]  # row 0 of the map is the top (v = 1)
             created.append(_float_texture(texels, linear=True))
             units.append((MAX_LAYERS + index, created[-1]))
+    if channel["substrate_map"] is not None:
+        texels = np.zeros((*channel["substrate_map"][0].shape[:2], 4))
+        texels[..., :3] = channel["substrate_map"][0][::-1]  # row 0 of the map is the top (v = 1)
+        created.append(_float_texture(texels, linear=True))
+        units.append((_SUBSTRATE_UNIT, created[-1]))
     bound = dict(units)
-    for unit in range(2 * MAX_LAYERS):
+    for unit in [*range(2 * MAX_LAYERS), _SUBSTRATE_UNIT]:
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
         GL.glBindTexture(GL.GL_TEXTURE_2D, bound.get(unit, 0))
     return created

@@ -312,3 +312,56 @@ def test_rendered_rgb_and_bands_stay_within_their_planned_delta_e_of_rendered_ex
         planned = plan.tables.candidates[-1].max_dE
         measured = float(colour.delta_E(space.to_Lab(rgb), exact, method="CIE 2000"))
         assert measured == pytest.approx(planned, abs=0.01)  # float32 pixels: a hundredth of a unit
+
+
+def skin_scene(folder: Path, material: Path, mode: str, texture: np.ndarray | None) -> Path:
+    """The card scene on light skin (no lobe, no scattering) under a film of 0 um, optionally with a texture."""
+    from renderer.image_io import write_exr
+
+    scene_path = write_scene(folder, material, mode_line=f'mode = "{mode}"')
+    text = scene_path.read_text().replace('thickness = "20 um"', 'thickness = "0 um"')
+    skin = '[skin]\nreflectance = "colorchecker:light skin"\nspecular = false\nscattering = false\n'
+    if texture is not None:
+        write_exr(folder / "albedo.exr", texture, {}, half=False)
+        skin += 'albedo_texture = "albedo.exr"\n'
+    scene_path.write_text(text.replace("[substrate]\nreflectance = 0.5\n", skin), encoding="utf-8")
+    return scene_path
+
+
+def render_centre_row(scene_path: Path, out: Path) -> np.ndarray:
+    assert cli.main(["render", str(scene_path), "-o", str(out)]) == 0
+    return read_exr(out / "frame_000.exr")[0][SIZE // 2]
+
+
+@pytest.mark.parametrize("mode", ["rgb", "bands:6", "exact"])
+def test_bare_skin_with_an_albedo_texture_renders_the_texture(tmp_path, material_file, mode, capsys):
+    """A texture of two colours on bare skin: in rgb and exact each half renders its colour exactly (the spectra
+    built from the skin's reproduce the texture's RGB); in every mode a texel of the skin's own colour renders as
+    the untextured skin does."""
+    (tmp_path / "plain").mkdir()
+    plain = render_centre_row(skin_scene(tmp_path / "plain", material_file, mode, None), tmp_path / "plain" / "out")
+    skin_rgb = plain[16] / np.array(RADIANCE)  # the untextured skin, as this mode renders it
+    texture = np.zeros((4, 8, 3))
+    texture[:, 4:] = (0.22, 0.30, 0.45)
+    if mode == "bands:6":  # the skin's colour in the working space, from its spectrum (the mode's own error aside)
+        from kmpipe.optical_tables import working_space
+
+        material = read_material(material_file)
+        substrate = load_scene(skin_scene(tmp_path, material_file, mode, None)).substrate
+        texture[:, :4] = substrate @ working_space(material.wavelengths, "D65").matrix
+    else:
+        texture[:, :4] = skin_rgb
+    row = render_centre_row(skin_scene(tmp_path, material_file, mode, texture), tmp_path / "out")
+    capsys.readouterr()
+    np.testing.assert_allclose(row[8], plain[8], rtol=1e-5)  # the skin's own colour: k = (1, 1, 1)
+    if mode != "bands:6":
+        np.testing.assert_allclose(row[23], texture[0, 7] * np.array(RADIANCE), rtol=2e-3)
+
+
+def test_a_missing_albedo_texture_exits_2(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file)
+    text = scene_path.read_text().replace("reflectance = 0.5", 'reflectance = 0.5\nalbedo_texture = "no.png"')
+    scene_path.write_text(text, encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "no.png" in err and "substrate.albedo_texture" in err

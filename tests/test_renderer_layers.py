@@ -219,3 +219,20 @@ def test_every_layer_reads_its_own_thickness_map():
     ):
         expected = reference(tables, [lr, tb, 0.02], substrate) * RADIANCE
         assert_card_equals(image, expected, np.broadcast_to(region, (SIZE, SIZE)))
+
+
+def test_a_substrate_map_mixes_the_basis_per_uv_and_clamps():
+    """Left half: the first basis reflectance; right half: half the second plus the third (clamped to [0, 1])."""
+    table = make_table(43)
+    basis = np.array([[0.2, 0.3, 0.4], [0.9, 0.8, 0.1], [0.6, 0.5, 0.2]])
+    weights = np.zeros((4, 8, 3))
+    weights[:, :4] = (1.0, 0.0, 0.0)
+    weights[:, 4:] = (0.0, 0.5, 1.0)
+    stack = ChannelStack([table], [0.01], np.full(3, 0.5), substrate_map=(weights, basis))
+    image = render_layers(CARD, CAMERA, [HEAD_ON], stack, SIZE, SIZE, background=BACKGROUND)
+    columns = np.arange(SIZE)[None, :]
+    left = np.broadcast_to(columns < 24, (SIZE, SIZE))
+    right = np.broadcast_to(columns >= 40, (SIZE, SIZE))
+    assert_card_equals(image, reference([table], [0.01], basis[0]) * RADIANCE, left)
+    right_substrate = np.clip(0.5 * basis[1] + basis[2], 0.0, 1.0)  # (1.05, 0.9, 0.25) -> red clamped to 1
+    assert_card_equals(image, reference([table], [0.01], right_substrate) * RADIANCE, right)

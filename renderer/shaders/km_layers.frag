@@ -5,6 +5,8 @@
 // up the reflectance R0 and transmittance T of the film at its thickness X (mm) in an optical table, interpolating
 // linearly between thickness samples and clamping at the ends, then composes it onto the reflectance Rg of
 // everything beneath it (thesis eq. 3.13):  Rg <- R0 + T^2 Rg / (1 - R0 Rg).
+// The substrate is uniform (u_substrate) or varies over uv (an albedo texture): then its channels are a mix of three
+// basis reflectances with weights read from u_substrate_map, clamped to [0, 1].
 // Channels are rgb (3) or spectral bands (up to MAX_CHANNELS), processed four at a time as vec4 groups; the
 // composite is converted to linear RGB with u_to_rgb. In precomposed mode (u_precomposed = 1, the `exact` render
 // mode) the stack's linear RGB reflectance and each layer's specular attenuation come ready-made from u_composite.
@@ -65,6 +67,9 @@ uniform sampler2D u_map1;
 uniform sampler2D u_map2;
 uniform sampler2D u_map3;
 uniform vec4 u_substrate[MAX_GROUPS];        // substrate albedo per channel, in [0, 1]
+uniform int u_use_substrate_map;             // 1: the substrate varies over uv (an albedo texture)
+uniform sampler2D u_substrate_map;           // rgb: weights w of the three basis spectra at this uv
+uniform vec4 u_substrate_basis[3 * MAX_GROUPS];  // basis b (0 .. 2), group g at b * MAX_GROUPS + g
 uniform vec3 u_to_rgb[MAX_CHANNELS];         // row c: linear RGB contributed by unit reflectance in channel c
 uniform int u_precomposed;                   // 1: reflectance and attenuation from u_composite
 uniform sampler2DArray u_composite;          // precomposed layers (layout above)
@@ -159,6 +164,11 @@ void stack_optics(out vec3 reflectance, out vec3 over_black, out vec3 attenuatio
     over_black = vec3(0.0);
     for (int g = 0; g < u_group_count; ++g) {
         vec4 ground = u_substrate[g];
+        if (u_use_substrate_map == 1) {
+            vec3 w = texture(u_substrate_map, v_uv).rgb;
+            ground = clamp(w.r * u_substrate_basis[g] + w.g * u_substrate_basis[MAX_GROUPS + g]
+                           + w.b * u_substrate_basis[2 * MAX_GROUPS + g], 0.0, 1.0);
+        }
         vec4 black = vec4(0.0);
         vec4 t2[MAX_LAYERS];
         for (int layer = 0; layer < u_layer_count; ++layer) {
