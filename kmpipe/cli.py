@@ -230,7 +230,7 @@ def _material_files(target: Path) -> list[Path]:
 
 def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.report import write_index, write_sample_report
-    from kmpipe.validation import Thresholds, validate_material
+    from kmpipe.validation import Thresholds, report_to_dict, validate_material
 
     materials = _material_files(args.material)
     if args.manifest is not None and len(materials) > 1:
@@ -284,7 +284,7 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
     if len(materials) == 1:
         console.print(f"report: {entries[0][1]}", highlight=False)
     elif entries:
-        index = write_index(entries, out_dir)
+        index = write_index([(report_to_dict(report), page) for report, page in entries], out_dir)
         console.print(f"index of {len(entries)} reports: {index}", highlight=False)
     if broken:
         errors = Console(stderr=True)
@@ -465,6 +465,62 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def _cmd_run(args: argparse.Namespace, console: Console) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from kmpipe.run import execute, plan_run
+
+    out_dir = args.output or args.recipe.parent / "out"
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("exists and is not a folder", path=out_dir, field="-o")
+    plan = plan_run(args.recipe, out_dir, only=args.only or (), keep_going=args.keep_going)
+    if args.dry_run:
+        console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
+        return EXIT_OK
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        console=console, transient=True,
+    ) as progress:  # fmt: skip
+        bar = progress.add_task("tasks", total=None)
+
+        def on_task(task, done: int, total: int) -> None:
+            progress.update(bar, completed=done, total=total, description=f"tasks (last: {task.id})")
+
+        summary = execute(
+            plan, executor=args.executor, workers=args.workers, scheduler=args.scheduler, on_task=on_task
+        )
+    table = Table(title=f"kmpipe run: {plan.recipe.info.line.name}", title_justify="left")
+    for column in ("product", "validation", "frames"):
+        table.add_column(column)
+    rendered: dict[str, int] = {}
+    for task in plan.tasks.values():
+        if task.id.startswith("render:") and task.state in ("run", "cached"):
+            rendered[task.product] = rendered.get(task.product, 0) + len(task.args["frames"])
+    colours = {"pass": "green", "warn": "yellow", "fail": "red"}
+    for product in plan.recipe.info.product:
+        verdict = summary.verdicts.get(product.name)
+        shown = "—" if verdict is None else f"[{colours.get(verdict, 'white')}]{verdict}[/]"
+        skipped = [t.reason for t in plan.tasks.values() if t.product == product.name and t.state == "skipped"]
+        frames = str(rendered.get(product.name, 0)) + (f" (skipped: {escape(skipped[0])})" if skipped else "")
+        table.add_row(escape(product.name), shown, frames)
+    console.print(table)
+    console.print(
+        f"{summary.products} products, {summary.frames} frames in {summary.seconds:.1f} s: {summary.ran} tasks run, "
+        f"{summary.cached} cached, {summary.skipped} skipped, {len(summary.failed)} failed",
+        highlight=False,
+    )
+    if summary.sheet is not None:
+        console.print(f"contact sheet: {summary.sheet}", highlight=False)
+    if summary.reports is not None:
+        console.print(f"validation reports: {summary.reports}", highlight=False)
+    if summary.failed:
+        errors = Console(stderr=True)
+        for line in summary.failed:
+            errors.print(f"[bold red]kmpipe run: error:[/] {escape(line)}", highlight=False, soft_wrap=True)
+        return EXIT_BAD_INPUT
+    return EXIT_CHECK_FAILED if summary.skipped or "fail" in summary.verdicts.values() else EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="kmpipe",
@@ -636,6 +692,26 @@ def build_parser() -> argparse.ArgumentParser:
         "on OUT_DIR/ab_sss.png",
     )
     render.set_defaults(run=_cmd_render)
+
+    run = commands.add_parser(
+        "run",
+        help="run a product line's recipe: replay or fit, validate, render turntables, sheets; cached, resumable",
+        description="Runs every stage the recipe needs as a graph of tasks cached by the content of their inputs: "
+        "a second run does nothing, a changed product re-runs that product's tasks, a killed run resumes. Exit "
+        "status 0: done; 1: a product failed validation (and was not rendered) or was skipped; 2: bad input.",
+    )
+    run.add_argument("recipe", type=Path, help="recipe file, TOML (docs/formats.md)")
+    run.add_argument("-o", "--output", type=Path, help="output folder (default: out/ beside the recipe)")
+    run.add_argument("--dry-run", action="store_true", help="print what would run, what is cached and skipped")
+    run.add_argument("--only", nargs="+", metavar="PRODUCT", help="these products (and the materials they use)")
+    run.add_argument("--executor", choices=("local", "dask"), default="local", help="where tasks run")
+    run.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler, e.g. tcp://HOST:8786 (with dask)")
+    run.add_argument(
+        "--workers", type=int, default=1, choices=range(1, 65), metavar="N",
+        help="processes (local: a pool when N > 1; dask: local cluster size); default 1",
+    )  # fmt: skip
+    run.add_argument("--keep-going", action="store_true", help="render products that failed validation, marked")
+    run.set_defaults(run=_cmd_run)
     return parser
 
 

@@ -15,7 +15,7 @@ a ground under the product.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -337,12 +337,14 @@ def _ground(scene: Scene):
 
 
 def render_scene(
-    scene_path: str | Path,
+    scene: str | Path | Scene,
     out_dir: str | Path,
     *,
     explain: bool = False,
     scattering: bool = True,
     ab_scattering: bool = False,
+    frames: Sequence[int] | None = None,
+    header: dict[str, str] | None = None,
     echo: Callable[[str], None] = print,
     on_frame: Callable[[int, int], None] | None = None,
 ) -> list[Path]:
@@ -351,7 +353,8 @@ def render_scene(
     ``explain`` passes the plan's text to ``echo``; ``on_frame(i, n)`` is called after frame i of n. The PNG is
     tone mapped as the scene's ``[output]`` says; the EXR keeps the linear render. On skin, ``scattering=False``
     turns subsurface scattering off, and ``ab_scattering`` renders every frame without it as well (into
-    ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below, thesis figure 5.58).
+    ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below, thesis figure 5.58). ``frames``
+    renders only those frames of the turntable (indices); ``header`` adds attributes to every frame's EXR header.
     Returns the files written, EXR and PNG of each frame in order (then the A/B frames and sheet).
     """
     from renderer.image_io import write_exr, write_png
@@ -359,7 +362,8 @@ def render_scene(
     from renderer.skin import render_skin
     from renderer.tone_map import tone_map
 
-    scene = load_scene(scene_path)
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
     if ab_scattering and (scene.info.skin is None or skin_scattering(scene) is None):
         raise InputError(
             "--ab-sss compares renders with and without subsurface scattering: the scene needs [skin] with its "
@@ -379,6 +383,7 @@ def render_scene(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     header = {
+        **(header or {}),
         "scene": scene.name,
         "product": scene.product,
         "shade": scene.shade,
@@ -405,7 +410,9 @@ def render_scene(
         (out_dir / "no_sss").mkdir(exist_ok=True)
     written = []
     angles = scene.turntable_angles_deg()
-    for i, angle in enumerate(angles):
+    chosen = range(len(angles)) if frames is None else list(frames)
+    for done, i in enumerate(chosen):
+        angle = angles[i]
         common = {
             "specular": specular,
             "model": turntable_model(scene, angle),
@@ -433,7 +440,7 @@ def render_scene(
             write_png(png, tone_map(image, info.output.tone_map, info.output.exposure_ev))
             written += [exr, png]
         if on_frame is not None:
-            on_frame(i + 1, len(angles))
+            on_frame(done + 1, len(chosen))
     if ab_scattering:
         written.append(_ab_sheet(out_dir, scene, len(angles)))
     return written

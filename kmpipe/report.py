@@ -387,29 +387,29 @@ def write_sample_report(report: SampleReport, out_dir: Path) -> Path:
     return path
 
 
-def write_index(entries: list[tuple[SampleReport, Path]], out_dir: Path) -> Path:
-    """Write ``index.html`` and ``summary.json`` for a batch into ``out_dir``, failing samples first;
-    ``entries`` pair each report with its report.html. Return the index path."""
+def write_index(entries: list[tuple[dict, Path]], out_dir: Path) -> Path:
+    """Write ``index.html`` and ``summary.json`` for a batch into ``out_dir``, failing samples first; ``entries``
+    pair each report's document (:func:`report_to_dict`, as in validation.json) with its report.html. Return the
+    index path."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    ordered = sorted(entries, key=lambda e: (-SEVERITIES.index(e[0].verdict), e[0].material.name))
+    ordered = sorted(entries, key=lambda e: (-SEVERITIES.index(e[0]["verdict"]), e[0]["sample"]))
     summary, rows = [], []
-    for report, page in ordered:
+    for doc, page in ordered:
         link = Path(os.path.relpath(Path(page).resolve(), out_dir.resolve())).as_posix()
-        doc = report_to_dict(report)
         worst = doc["worst_delta_e_2000"]
         summary.append(
             {key: doc[key] for key in ("sample", "product", "verdict", "worst_delta_e_2000", "reasons")}
             | {"report": link}
         )
         rows.append(
-            f'<tr class="{report.verdict}"><td>{html.escape(report.material.name)}</td>'
-            f"<td>{html.escape(report.material.product)}</td><td>{_badge(report.verdict)}</td>"
+            f'<tr class="{doc["verdict"]}"><td>{html.escape(doc["sample"])}</td>'
+            f"<td>{html.escape(doc['product'])}</td><td>{_badge(doc['verdict'])}</td>"
             f'<td class="num">{"—" if worst is None else f"{worst:.2f}"}</td>'
-            f"<td>{html.escape(', '.join(report.reasons)) or '—'}</td>"
+            f"<td>{html.escape(', '.join(doc['reasons'])) or '—'}</td>"
             f'<td><a href="{html.escape(quote(link))}">{html.escape(link)}</a></td></tr>'
         )
-    counts = ", ".join(f"{sum(e[0].verdict == v for e in entries)} {v}" for v in reversed(SEVERITIES))
+    counts = ", ".join(f"{sum(e[0]['verdict'] == v for e in entries)} {v}" for v in reversed(SEVERITIES))
     body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n" + _table(
         ["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows
     )

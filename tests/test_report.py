@@ -192,7 +192,7 @@ def test_index_lists_failing_samples_first_and_links_their_reports(f1_report, tm
         ),
     ]
     entries = [(r, write_sample_report(r, tmp_path / "reports" / r.material.name)) for r in reports]
-    index = write_index(entries, tmp_path / "batch")
+    index = write_index([(report_to_dict(r), page) for r, page in entries], tmp_path / "batch")
     assert index == tmp_path / "batch" / "index.html"
     page = index.read_text(encoding="utf-8")
     rows = re.findall(r'<tr class="(\w+)"><td>(\w+)</td>.*?<a href="([^"]+)">', page)
@@ -265,5 +265,5 @@ def test_channel_material_report_has_no_swatches_or_delta_e(tmp_path):
     assert "Camera-channel material" in page and "ΔE00 D65" not in page
     document = strict_json(tmp_path / "report" / "validation.json")
     assert document["worst_delta_e_2000"] is None and document["illuminants"] == []
-    write_index([(report, tmp_path / "report" / "report.html")], tmp_path)
+    write_index([(report_to_dict(report), tmp_path / "report" / "report.html")], tmp_path)
     assert strict_json(tmp_path / "summary.json")[0]["worst_delta_e_2000"] is None

@@ -1,0 +1,320 @@
+"""Recipe files (TOML) for ``kmpipe run``: a product line, where its materials come from, and how to render it.
+
+A recipe names the line (illuminant, accuracy or render mode), the validation thresholds, the scene every product is
+rendered in (the tables of a scene file, :mod:`kmpipe.scene`, at the top level: ``[scene]`` without name, product
+and shade, ``[substrate]`` or ``[skin]``, ``[[light]]``, ``[ground]``, ``[camera]``, ``[turntable]``, ``[output]``;
+no ``[[layer]]``), the products and the outputs. Each product has a name,
+a shade, where its material comes from (a recorded CS-2000 session to replay and fit, measurements to fit, or a
+material file; or none, for a look made of other products' materials), its layer stack (top first; ``material`` is
+``"self"`` or another product's name) and optional overrides of the template's mesh, substrate or skin.
+
+Nothing in a recipe is executed: it is data. Input paths are relative to the recipe's folder and only read; every
+output goes under the run's output folder, and an output path that would leave it is refused. Every problem is an
+:class:`~kmpipe.errors.InputError` naming the file, line and field.
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from kmpipe.errors import InputError
+from kmpipe.manifest import first_validation_error, format_field, read_toml, toml_line
+from kmpipe.optical_tables import parse_mode
+from kmpipe.scene import MAX_LAYERS, SceneFile
+from kmpipe.validation import Thresholds
+
+#: The material of the product itself, in its layer stack.
+SELF = "self"
+#: Scene-file tables a product may override.
+PRODUCT_OVERRIDES = ("mesh", "substrate", "skin")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LineInfo(_Strict):
+    name: str = Field(min_length=1)
+    illuminant: str = "D65"
+    accuracy: float | None = Field(default=None, gt=0.0)
+    mode: str | None = None
+
+    @field_validator("mode")
+    @classmethod
+    def _known_mode(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_mode(value)
+        return value
+
+
+class ValidationInfo(_Strict):
+    illuminants: list[str] = Field(default=["D65"], min_length=1)
+    delta_e_warn: float | None = None
+    delta_e_fail: float | None = None
+    rmse_warn: float | None = None
+    rmse_fail: float | None = None
+
+
+class ReplaySource(_Strict):
+    log: str = Field(min_length=1)
+    plan: str = Field(min_length=1)
+
+
+class ProductInfo(_Strict):
+    name: str = Field(min_length=1, max_length=80)
+    shade: str | None = None
+    replay: ReplaySource | None = None
+    fit: str | None = None
+    material: str | None = None
+    mesh: str | None = None
+    substrate: dict[str, Any] | None = None
+    skin: dict[str, Any] | None = None
+    layer: list[dict[str, Any]] = Field(default=[], max_length=MAX_LAYERS)
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, value: str) -> str:
+        if value.strip() != value or value.lower() == SELF or any(c in value for c in "/\\\0"):
+            raise ValueError(f"a product name is plain text without slashes, not {SELF!r}, got {value!r}")
+        return value
+
+    @model_validator(mode="after")
+    def _one_source(self) -> ProductInfo:
+        given = [k for k in ("replay", "fit", "material") if getattr(self, k) is not None]
+        if len(given) > 1:
+            raise ValueError(f"give one source of the material (replay, fit or material), not {' and '.join(given)}")
+        if not given and not self.layer:
+            raise ValueError("a product needs a source of its material (replay, fit or material) or a layer stack")
+        return self
+
+    @property
+    def source(self) -> str | None:
+        return next((k for k in ("replay", "fit", "material") if getattr(self, k) is not None), None)
+
+
+class OutputsInfo(_Strict):
+    frames: str = "frames"
+    reports: str = "reports"
+    sheet: str | None = "sheet.png"
+    sheet_columns: int = Field(default=4, ge=1, le=36)
+
+
+#: Scene-file tables a recipe holds at its top level, for every product.
+SCENE_TABLES = ("scene", "substrate", "skin", "light", "ground", "camera", "turntable", "output")
+
+
+class RecipeFile(_Strict):
+    line: LineInfo
+    validation: ValidationInfo = ValidationInfo()
+    scene: dict[str, Any] = {}
+    substrate: dict[str, Any] | None = None
+    skin: dict[str, Any] | None = None
+    light: list[dict[str, Any]] | None = None
+    ground: dict[str, Any] | None = None
+    camera: dict[str, Any] | None = None
+    turntable: dict[str, Any] | None = None
+    output: dict[str, Any] | None = None
+    product: list[ProductInfo] = Field(min_length=1)
+    outputs: OutputsInfo = OutputsInfo()
+
+    def template(self) -> dict:
+        """The scene-file tables the recipe gives every product."""
+        return {key: getattr(self, key) for key in SCENE_TABLES if getattr(self, key) is not None}
+
+    @model_validator(mode="after")
+    def _distinct_products(self) -> RecipeFile:
+        names = [p.name for p in self.product]
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            raise ValueError(f"product names must differ; repeated: {', '.join(repeated)}")
+        slugs = [slug(n) for n in names]
+        clashing = sorted({n for n, s in zip(names, slugs, strict=True) if slugs.count(s) > 1})
+        if clashing:
+            raise ValueError(f"product names that make the same folder name: {', '.join(clashing)}")
+        return self
+
+
+def slug(name: str) -> str:
+    """A product's folder name: lower case letters, digits and dashes (never empty, never '.' or '..')."""
+    text = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")
+    return text or "product"
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A checked recipe: its file, text and fields, with every input file resolved."""
+
+    path: Path
+    text: str
+    info: RecipeFile
+    thresholds: Thresholds
+
+    @property
+    def base(self) -> Path:
+        return self.path.parent
+
+    def where(self, loc: tuple) -> dict:
+        """InputError's path, line and field for a location in the recipe."""
+        return {"path": self.path, "line": toml_line(self.text, loc), "field": format_field(loc)}
+
+    def product(self, name: str) -> ProductInfo:
+        return next(p for p in self.info.product if p.name == name)
+
+    def scene_data(self, product: ProductInfo, materials: dict[str, Path]) -> dict:
+        """The scene-file data of one product: the template, its overrides, its layers with material paths.
+
+        ``materials`` maps product names to their material files (absolute paths).
+        """
+        data = copy.deepcopy(self.info.template())
+        info = self.info.line
+        data.setdefault("scene", {})
+        data["scene"].update(name=info.name, product=product.name, shade=product.shade or product.name)
+        data["scene"].setdefault("illuminant", info.illuminant)
+        if info.accuracy is not None:
+            data["scene"]["accuracy"] = info.accuracy
+        if info.mode is not None:
+            data["scene"]["mode"] = info.mode
+        if product.mesh is not None:
+            data["scene"]["mesh"] = product.mesh
+        for key in ("substrate", "skin"):
+            if getattr(product, key) is not None:
+                data.pop("substrate", None)
+                data.pop("skin", None)
+        for key in ("substrate", "skin"):
+            if getattr(product, key) is not None:
+                data[key] = copy.deepcopy(getattr(product, key))
+        data["layer"] = []
+        for layer in product.layer:
+            entry = copy.deepcopy(layer)
+            owner = product.name if entry.get("material") == SELF else entry.get("material")
+            entry["material"] = str(materials[owner])
+            data["layer"].append(entry)
+        return data
+
+    def scene_where(self, index: int):
+        """Locator for a product's composed scene: its layers and overrides are the product's, the rest the
+        recipe's own tables (named as in a scene file)."""
+
+        def where(loc: tuple) -> dict:
+            loc = tuple(loc)
+            product = self.info.product[index]
+            if loc and loc[0] == "layer":
+                return self.where(("product", index, *loc))
+            if loc and loc[0] in ("substrate", "skin") and getattr(product, loc[0]) is not None:
+                return self.where(("product", index, *loc))
+            if loc[:2] == ("scene", "mesh") and product.mesh is not None:
+                return self.where(("product", index, "mesh"))
+            if not loc or loc[0] == "__root__":
+                return self.where(("product", index))
+            return self.where(loc)
+
+        return where
+
+
+def inside(out_dir: Path, relative: str, where: dict) -> Path:
+    """``out_dir / relative``, refused (InputError at ``where``) if it would lie outside ``out_dir``."""
+    target = (out_dir / relative).resolve()
+    root = out_dir.resolve()
+    if Path(relative).is_absolute() or not (target == root or target.is_relative_to(root)):
+        raise InputError(f"{relative!r} would write outside the output folder; give a path inside it", **where)
+    return target
+
+
+def load_recipe(path: str | Path) -> Recipe:
+    """Read and check a recipe: fields, product references, input files and each product's scene."""
+    path = Path(path)
+    text, data = read_toml(path, "recipe")
+    try:
+        info = RecipeFile.model_validate(data)
+    except ValidationError as err:
+        first = first_validation_error(err)
+        loc = tuple(first["loc"])
+        message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
+        raise InputError(message, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
+    recipe = Recipe(path, text, info, _thresholds(info.validation, path, text))
+    _check_template(recipe)
+    names = {p.name for p in info.product}
+    for i, product in enumerate(info.product):
+        for source, key in ((product.fit, "fit"), (product.material, "material")):
+            if source is not None:
+                _existing(recipe, source, ("product", i, key))
+        if product.replay is not None:
+            _existing(recipe, product.replay.log, ("product", i, "replay", "log"))
+            _existing(recipe, product.replay.plan, ("product", i, "replay", "plan"))
+        for j, layer in enumerate(product.layer):
+            owner = layer.get("material")
+            if owner == SELF and product.source is None:
+                raise InputError("names 'self', but the product has no material of its own", **recipe.where(
+                    ("product", i, "layer", j, "material")))  # fmt: skip
+            if owner != SELF and owner not in names:
+                raise InputError(
+                    f"names {owner!r}: expected 'self' or the name of a product of the recipe "
+                    f"({', '.join(sorted(names))})",
+                    **recipe.where(("product", i, "layer", j, "material")),
+                )
+            if owner != SELF and recipe.product(owner).source is None:
+                raise InputError(f"names {owner!r}, a product without a material of its own", **recipe.where(
+                    ("product", i, "layer", j, "material")))  # fmt: skip
+        if product.layer:
+            _check_product_scene(recipe, i)
+    for key in ("frames", "reports", "sheet"):
+        value = getattr(info.outputs, key)
+        if value is not None:
+            inside(Path("."), value, recipe.where(("outputs", key)))
+    return recipe
+
+
+def _thresholds(info: ValidationInfo, path: Path, text: str) -> Thresholds:
+    values = info.model_dump(exclude={"illuminants"})
+    try:
+        return Thresholds().updated(**values)
+    except InputError as err:
+        field = f"validation.{err.field}" if err.field else "validation"
+        raise InputError(err.message, path=path, line=toml_line(text, ("validation", err.field)), field=field) from None
+
+
+def _existing(recipe: Recipe, relative: str, loc: tuple) -> Path:
+    target = recipe.base / relative
+    if not target.is_file():
+        raise InputError(f"names {target}, which {'is not a file' if target.exists() else 'does not exist'}",
+                         **recipe.where(loc))  # fmt: skip
+    return target
+
+
+def _check_template(recipe: Recipe) -> None:
+    """[scene] holds what a scene file's does, but the name, product and shade: the line and products give those."""
+    for key in ("name", "product", "shade"):
+        if key in recipe.info.scene:
+            raise InputError(f"scene.{key} comes from [line] and the products; remove it",
+                             **recipe.where(("scene", key)))  # fmt: skip
+
+
+def _check_product_scene(recipe: Recipe, index: int) -> None:
+    """Validate a product's composed scene as a scene file (materials stand in by name; files exist later)."""
+    product = recipe.info.product[index]
+    placeholder = {p.name: Path(f"{slug(p.name)}.json") for p in recipe.info.product}
+    data = recipe.scene_data(product, placeholder)
+    try:
+        SceneFile.model_validate(data)
+    except ValidationError as err:
+        first = first_validation_error(err)
+        loc = tuple(first["loc"])
+        message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
+        raise InputError(message, **recipe.scene_where(index)(loc)) from None
+    where = recipe.scene_where(index)
+    for j, layer in enumerate(product.layer):
+        mapping = layer.get("thickness_map")
+        if isinstance(mapping, dict) and "file" in mapping:
+            _existing(recipe, mapping["file"], ("product", index, "layer", j, "thickness_map"))
+    for key in ("substrate", "skin"):
+        table = data.get(key) or {}
+        if table.get("albedo_texture"):
+            target = recipe.base / table["albedo_texture"]
+            if not target.is_file():
+                raise InputError(f"names {target}, which does not exist", **where((key, "albedo_texture")))
