@@ -18,6 +18,7 @@ import bench_fit_grid
 import bench_inversion
 import bench_render
 import bench_render_modes
+import bench_run
 import bench_skin
 import numpy as np
 from common import REPO, Table, machine
@@ -25,7 +26,7 @@ from common import REPO, Table, machine
 COMMAND = ".venv/bin/python benchmarks/run_all.py"
 
 
-def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, skin_rows: list) -> Table:
+def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, skin_rows: list, run_rows: list) -> Table:
     rows = []
     for t in inversion["timings"]:
         if t.data != "noisy":
@@ -50,6 +51,9 @@ def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, ski
             seconds = float(r[5]) / 1e3
             rows.append([f"frame on skin, 3 layers, shadows, SSS at 512 x 512 ({r[0]}): s", "< 0.3", f"{seconds:.3f}",
                          "yes" if seconds < bench_skin.TARGET_S else "no"])
+    for r in run_rows:
+        rows.append([f"demo line end to end ({r[0]}): s", "< 120", r[2], r[5]])
+        rows.append([f"demo line, cached re-run ({r[0]}): s", "< 3", r[4], r[6]])
     return Table("Targets", ["quantity", "target", "measured", "met"], rows,
                  ["inversion and fit rows on noisy readings"])
 
@@ -101,9 +105,14 @@ def main() -> None:
     clock = time.perf_counter()
     skin_rows = bench_skin.run()
     parts.append(("Makeup on skin", bench_skin.tables(skin_rows), time.perf_counter() - clock))
+
+    print("product line ...", file=sys.stderr, flush=True)
+    clock = time.perf_counter()
+    run_rows = bench_run.run()
+    parts.append(("Product line", bench_run.tables(run_rows), time.perf_counter() - clock))
     total = time.perf_counter() - started
 
-    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows)
+    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, run_rows)
     summary.print()
     for _, tables, _ in parts:
         for table in tables:
@@ -113,7 +122,8 @@ def main() -> None:
     lines = [
         "# Benchmarks",
         "",
-        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering and skin,",
+        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering, skin and",
+        "product-line runs,",
         "on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",

@@ -77,31 +77,36 @@ def write_exr(
     _write(path, image, spec)
 
 
-def read_exr(path: str | Path) -> tuple[np.ndarray, dict[str, AttributeValue]]:
-    """Read an EXR: the pixels as float32 (height, width, channels), top row first, and all header attributes."""
+def _read(path: str | Path, pixel_type, pixels: bool = True) -> tuple[np.ndarray | None, oiio.ImageSpec]:
+    """An image file's pixels (height, width, channels) as OIIO's ``pixel_type``, top row first, and its spec."""
     source = oiio.ImageInput.open(str(path))
     if source is None:
         raise OSError(f"{path}: cannot open: {oiio.geterror()}")
     try:
         spec = source.spec()
-        pixels = source.read_image(oiio.FLOAT)
-        if pixels is None:
+        if not pixels:
+            return None, spec
+        data = source.read_image(pixel_type)
+        if data is None:
             raise OSError(f"{path}: read failed: {source.geterror()}")
-        attributes = {attribute.name: attribute.value for attribute in spec.extra_attribs}
     finally:
         source.close()
-    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), attributes
+    return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels), spec
+
+
+def _attributes(spec: oiio.ImageSpec) -> dict[str, AttributeValue]:
+    return {attribute.name: attribute.value for attribute in spec.extra_attribs}
+
+
+def read_exr(path: str | Path) -> tuple[np.ndarray, dict[str, AttributeValue]]:
+    """Read an EXR: the pixels as float32 (height, width, channels), top row first, and all header attributes."""
+    pixels, spec = _read(path, oiio.FLOAT)
+    return pixels.astype(np.float32, copy=False), _attributes(spec)
 
 
 def read_header(path: str | Path) -> dict[str, AttributeValue]:
     """The header attributes of an image file, without reading its pixels."""
-    source = oiio.ImageInput.open(str(path))
-    if source is None:
-        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
-    try:
-        return {attribute.name: attribute.value for attribute in source.spec().extra_attribs}
-    finally:
-        source.close()
+    return _attributes(_read(path, oiio.FLOAT, pixels=False)[1])
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -128,17 +133,7 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
 
 def read_png(path: str | Path) -> np.ndarray:
     """Read a PNG's 8-bit codes as uint8 (height, width, channels), top row first, without decoding sRGB."""
-    source = oiio.ImageInput.open(str(path))
-    if source is None:
-        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
-    try:
-        spec = source.spec()
-        pixels = source.read_image(oiio.UINT8)
-        if pixels is None:
-            raise OSError(f"{path}: read failed: {source.geterror()}")
-    finally:
-        source.close()
-    return np.asarray(pixels, dtype=np.uint8).reshape(spec.height, spec.width, spec.nchannels)
+    return _read(path, oiio.UINT8)[0].astype(np.uint8, copy=False)
 
 
 def read_pixels(path: str | Path) -> tuple[np.ndarray, list[str]]:
@@ -147,18 +142,8 @@ def read_pixels(path: str | Path) -> tuple[np.ndarray, list[str]]:
     No colour decoding: integer files are normalised to [0, 1] (code / max code), float files (EXR) read as stored.
     Raises :class:`OSError` when the file cannot be read.
     """
-    source = oiio.ImageInput.open(str(path))
-    if source is None:
-        raise OSError(f"{path}: cannot open: {oiio.geterror()}")
-    try:
-        spec = source.spec()
-        pixels = source.read_image(oiio.FLOAT)
-        if pixels is None:
-            raise OSError(f"{path}: read failed: {source.geterror()}")
-    finally:
-        source.close()
-    image = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
-    return image, list(spec.channelnames)
+    pixels, spec = _read(path, oiio.FLOAT)
+    return pixels.astype(np.float64), list(spec.channelnames)
 
 
 def read_channel(path: str | Path, channel: str) -> np.ndarray:

@@ -17,7 +17,7 @@ attenuated by the films above it. A pixel renders as
     sum over lights of  E * visibility * max(cos theta, 0) * (R_rgb + pi * sum_i A_i f_spec,i)
 
 with ``E`` the light's radiance, the value a white Lambert surface facing the light renders to (as in
-:mod:`renderer.render_flat`); ``km_layers.frag`` gives every term. Lights that cast shadows get a shadow map
+a bare Lambert surface); ``km_layers.frag`` gives every term. Lights that cast shadows get a shadow map
 (:mod:`renderer.shadows`) covering the mesh and the props, filtered with 3 x 3 PCF taps.
 """
 

@@ -1,7 +1,7 @@
 """Tone mapping: scene-referred linear RGB to display-referred linear RGB in [0, 1], ready for ``write_png``.
 
 Values are linear and relative, in the units of the render (a white Lambert surface facing the light renders to the
-light's radiance ``E``; see :mod:`renderer.render_flat`). :func:`tone_map` returns linear values in [0, 1];
+light's radiance ``E``; see :mod:`renderer.layers`). :func:`tone_map` returns linear values in [0, 1];
 :func:`renderer.image_io.write_png` then applies the sRGB transfer function, so nothing here encodes gamma.
 
 Every operator starts with an exposure of ``ev`` stops and clamps negative values to 0::

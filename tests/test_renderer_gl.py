@@ -13,9 +13,15 @@ import multiprocessing
 import numpy as np
 import pytest
 
-from renderer import context, image_io, meshes, render_flat
+from renderer import context, image_io, meshes
+from renderer.layers import ChannelStack, render_layers
 from renderer.program import Program, ShaderError
 from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera
+
+
+def lambert(mesh, camera, light, albedo, width, height, **options):
+    """A bare Lambert surface of ``albedo`` (linear RGB): the layer pass with no films."""
+    return render_layers(mesh, camera, [light], ChannelStack([], [], albedo), width, height, **options)
 
 ALBEDO = np.array([0.5, 0.25, 0.8])
 RADIANCE = np.array([2.0, 3.0, 0.5])
@@ -35,7 +41,7 @@ def covered(image: np.ndarray) -> np.ndarray:
 
 def render_card(albedo: tuple[float, float, float]) -> np.ndarray:
     """A 20 x 10 mm card head-on in a 64 x 64 orthographic image; module level so spawn workers can import it."""
-    return render_flat.render(
+    return lambert(
         meshes.card(20.0, 10.0), OrthographicCamera(half_height=10.0), HEAD_ON, albedo, 64, 64, background=BACKGROUND
     )
 
@@ -61,7 +67,7 @@ def test_card_head_on_renders_albedo_times_radiance_over_the_card_only():
 def test_tilting_the_light_scales_by_cos_theta(theta_deg):
     theta = np.radians(theta_deg)
     light = DirectionalLight(direction=(0.0, -np.sin(theta), -np.cos(theta)), radiance=tuple(RADIANCE))
-    image = render_flat.render(
+    image = lambert(
         meshes.card(20.0, 20.0), OrthographicCamera(half_height=10.0), light, tuple(ALBEDO), 16, 16
     )
     np.testing.assert_allclose(image, np.broadcast_to(ALBEDO * RADIANCE * np.cos(theta), image.shape), rtol=1e-5)
@@ -69,14 +75,14 @@ def test_tilting_the_light_scales_by_cos_theta(theta_deg):
 
 def test_light_from_behind_renders_black():
     light = DirectionalLight(direction=(0.0, 0.0, 1.0), radiance=tuple(RADIANCE))
-    image = render_flat.render(meshes.card(20.0, 20.0), OrthographicCamera(10.0), light, tuple(ALBEDO), 16, 16)
+    image = lambert(meshes.card(20.0, 20.0), OrthographicCamera(10.0), light, tuple(ALBEDO), 16, 16)
     np.testing.assert_array_equal(image, 0.0)
 
 
 def test_rows_are_top_first():
     top_half = np.eye(4)
     top_half[1, 3] = 5.0  # a 20 x 10 card moved up by 5 mm covers y in [0, 10]: the top half of the view
-    image = render_flat.render(
+    image = lambert(
         meshes.card(20.0, 10.0),
         OrthographicCamera(half_height=10.0),
         HEAD_ON,
@@ -93,7 +99,7 @@ def test_rows_are_top_first():
 
 def test_sphere_centre_and_shading_follow_lambert():
     radius, half_height, size = 8.0, 10.0, 129
-    image = render_flat.render(
+    image = lambert(
         meshes.sphere(radius),
         OrthographicCamera(half_height=half_height),
         HEAD_ON,
@@ -121,7 +127,7 @@ def test_sphere_centre_and_shading_follow_lambert():
     ids=["orthographic", "perspective"],
 )
 def test_sphere_silhouette_radius_matches_the_projection(camera, expected_radius_px):
-    image = render_flat.render(meshes.sphere(8.0), camera, HEAD_ON, tuple(ALBEDO), 129, 129, background=BACKGROUND)
+    image = lambert(meshes.sphere(8.0), camera, HEAD_ON, tuple(ALBEDO), 129, 129, background=BACKGROUND)
     mask = covered(image)
     measured_radius_px = np.sqrt(mask.sum() / np.pi)
     assert measured_radius_px == pytest.approx(expected_radius_px, rel=5e-3)
@@ -135,7 +141,7 @@ def test_broken_shader_names_the_file_and_the_log(tmp_path):
     broken.write_text("#version 330 core\nout vec4 c;\nvoid main() { c = undefined_thing; }\n")
     context.make_current(8, 8)
     with pytest.raises(ShaderError, match=r"broken\.frag: compile failed:\n.*undefined_thing"):
-        Program("lambert.vert", str(broken))
+        Program("km_layers.vert", str(broken))
 
 
 @pytest.mark.parametrize("half", [True, False])

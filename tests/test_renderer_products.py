@@ -12,8 +12,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from renderer import products, render_flat
+from renderer import products
+from renderer.layers import ChannelStack, render_layers
 from renderer.scene import DirectionalLight, OrthographicCamera
+
+
+def lambert(mesh, camera, light, albedo, width, height, **options):
+    """A bare Lambert surface of ``albedo`` (linear RGB): the layer pass with no films."""
+    return render_layers(mesh, camera, [light], ChannelStack([], [], albedo), width, height, **options)
 
 BULLETS = [
     {},  # the defaults: 12 mm x 20 mm, 50 degree bevel
@@ -205,10 +211,10 @@ def test_load_mesh_rejects_a_missing_file_naming_it(tmp_path):
 
 def test_compact_pan_renders_head_on_as_a_disc_of_its_radius():
     radiance, albedo, size, half = np.array([2.0, 3.0, 0.5]), np.array([0.5, 0.25, 0.8]), 121, 30.0
-    image = render_flat.render(
+    image = lambert(
         products.compact_pan(),
         OrthographicCamera(half_height=half),
-        DirectionalLight(direction=(0.0, 0.0, -1.0), radiance=tuple(radiance)),
+        DirectionalLight(direction=(0.0, 0.0, -1.0), radiance=tuple(radiance), cast_shadows=False),
         tuple(albedo),
         size,
         size,
