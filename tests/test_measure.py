@@ -361,9 +361,9 @@ def edited_plan(tmp_path: Path, old: str, new: str) -> Path:
     ("old", "new", "lines", "field"),
     [
         ("repeats = 1", "repaets = 1", (10,), "instrument.repaets"),  # a typo'd key
-        ('over = "white"\nthickness = "15 um"', 'over = "grey"\nthickness = "15 um"', (29,), "film[2].over"),
+        ('over = "white"\nthickness = "15 um"', 'over = "grey"\nthickness = "15 um"', (28,), "film[2].over"),
         # no thickness, unattended: the [[film]] table or its first key
-        ('over = "black"\nthickness = "15 um"\n', 'over = "black"\n', (24, 25), "film[1].thickness"),
+        ('over = "black"\nthickness = "15 um"\n', 'over = "black"\n', (23, 24), "film[1].thickness"),
     ],
     ids=["typo", "unknown-backing", "no-thickness"],
 )

@@ -149,7 +149,8 @@ def write_emulator_files(folder: Path, name: str, spec: dict, cards: dict, K: np
         "# kmpipe measure plan.toml --port /dev/ttyACM0 (or the emulator's link): one reading per position.\n"
         f'[sample]\nname = "{name}"\nproduct = "{spec["product"]}"\nkind = "{spec["kind"]}"\n\n'
         '[instrument]\nspeed = "normal"\nnd = "auto"\nrepeats = 1\n\n[white]\ncertified = "builtin:baso4"\n\n'
-        '[[backing]]\nname = "black"\n\n[[backing]]\nname = "white"\n\n[[masstone]]\nthickness = "1 mm"\n\n'
+        '[[backing]]\nname = "black"\n\n[[backing]]\nname = "white"\n\n'
+        '[[masstone]]  # as thick as it takes to hide the backing: no thickness declared\n\n'
         + "\n".join(films),
         encoding="utf-8",
     )
