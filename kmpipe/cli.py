@@ -508,11 +508,12 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
         f"{summary.products} products, {summary.frames} frames in {summary.seconds:.1f} s: {summary.ran} tasks run, "
         f"{summary.cached} cached, {summary.skipped} skipped, {len(summary.failed)} failed",
         highlight=False,
+        soft_wrap=True,
     )
     if summary.sheet is not None:
-        console.print(f"contact sheet: {summary.sheet}", highlight=False)
+        console.print(f"contact sheet: {summary.sheet}", highlight=False, soft_wrap=True)
     if summary.reports is not None:
-        console.print(f"validation reports: {summary.reports}", highlight=False)
+        console.print(f"validation reports: {summary.reports}", highlight=False, soft_wrap=True)
     if summary.failed:
         errors = Console(stderr=True)
         for line in summary.failed:

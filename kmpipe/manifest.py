@@ -179,41 +179,48 @@ class _LocatedError(ValueError):
 
 
 def toml_line(text: str, loc: tuple) -> int | None:
-    """1-based line of the field at ``loc`` (e.g. ('film', 1, 'thickness')) in TOML text, if found."""
+    """1-based line of the field at ``loc`` (e.g. ('film', 1, 'thickness'), ('product', 0, 'layer', 2, 'material'))
+    in TOML text, if found; else the line of the nearest enclosing table found.
+
+    Tables are followed down their dotted headers (``[[product]]`` then ``[[product.layer]]`` within it), each
+    index picking among the headers of that name; a key is looked for in its table before any further header.
+    """
     lines = text.splitlines()
-    table, index, key = None, None, None
     parts = [p for p in loc if not isinstance(p, str) or p]
-    if parts:
-        table = parts[0]
-    if len(parts) > 1 and isinstance(parts[1], int):
-        index = parts[1]
-        key = parts[2] if len(parts) > 2 else None
-    elif len(parts) > 1:
-        key = parts[1]
-    if table is None:
-        return None
-    header = re.compile(r"^\s*\[\[?\s*" + re.escape(str(table)) + r"\s*\]\]?\s*(#.*)?$")
-    any_header = re.compile(r"^\s*\[")
-    seen = -1
-    start = None
-    for number, line in enumerate(lines, 1):
-        if header.match(line):
-            seen += 1
-            if index is None or seen == index:
-                start = number
-                break
-    if start is None:
-        return None
-    if key is None:
-        return start
-    key_line = re.compile(r"^\s*" + re.escape(str(key)) + r"\s*=")
-    for number in range(start + 1, len(lines) + 1):
-        line = lines[number - 1]
-        if any_header.match(line):
-            break
-        if key_line.match(line):
-            return number
-    return start
+    start, end, prefix, best = 0, len(lines), "", None
+    i = 0
+    while i < len(parts) and isinstance(parts[i], str):
+        name = parts[i]
+        index = parts[i + 1] if i + 1 < len(parts) and isinstance(parts[i + 1], int) else None
+        dotted = f"{prefix}.{name}" if prefix else name
+        header = re.compile(r"^\s*\[\[?\s*" + re.escape(dotted) + r"\s*\]\]?\s*(#.*)?$")
+        found, seen = None, -1
+        for number in range(start, end):
+            if header.match(lines[number]):
+                seen += 1
+                if index is None or seen == index:
+                    found = number
+                    break
+        if found is None:  # a key of the current table (a value, an inline table or an inline array)
+            key = re.compile(r"^\s*" + re.escape(str(name)) + r"\s*=")
+            for number in range(start, end):
+                if number > start and _HEADER.match(lines[number]) and best is not None:
+                    break
+                if key.match(lines[number]):
+                    return number + 1
+            return best
+        best = found + 1
+        inner = dotted + "."
+        start, end = found + 1, next(
+            (n for n in range(found + 1, end) if (m := _HEADER.match(lines[n])) and not m.group(1).startswith(inner)),
+            end,
+        )
+        prefix = dotted
+        i += 1 if index is None else 2
+    return best
+
+
+_HEADER = re.compile(r"^\s*\[\[?\s*([^\]\s]+)")
 
 
 def format_field(loc: tuple) -> str:

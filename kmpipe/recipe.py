@@ -99,10 +99,17 @@ class ProductInfo(_Strict):
 
 
 class OutputsInfo(_Strict):
-    frames: str = "frames"
-    reports: str = "reports"
+    frames: str = Field(default="frames", min_length=1)
+    reports: str = Field(default="reports", min_length=1)
     sheet: str | None = "sheet.png"
     sheet_columns: int = Field(default=4, ge=1, le=36)
+
+    @field_validator("sheet")
+    @classmethod
+    def _png(cls, value: str | None) -> str | None:
+        if value is not None and (not value.lower().endswith(".png") or Path(value).name.lower() == ".png"):
+            raise ValueError(f"the contact sheet is a PNG file: expected a name ending in .png, got {value!r}")
+        return value
 
 
 #: Scene-file tables a recipe holds at its top level, for every product.

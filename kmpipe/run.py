@@ -199,7 +199,7 @@ def plan_run(
 ) -> RunPlan:
     """The task graph of a recipe: keys from file contents and settings, cached tasks marked."""
     recipe = load_recipe(recipe_path)
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()  # tasks may run in other processes, in other folders
     info = recipe.info
     names = [p.name for p in info.product]
     unknown = [n for n in only if n not in names]
@@ -451,7 +451,14 @@ def execute(
                 if task.state != "pending" or task.id in running.values():
                     continue
                 states = [tasks[d].state for d in task.deps]
-                if any(s in ("skipped", "failed") for s in states):
+                if task.product is None:  # the line's sheet and index: of what finished, if anything did
+                    if any(s == "pending" for s in states):
+                        continue
+                    if states and not any(s in ("cached", "run") for s in states):
+                        task.state, task.reason = "skipped", "nothing it lays out finished"
+                        continue
+                    running[pool.submit(call_task, task.function, _arguments(plan, task))] = task.id
+                elif any(s in ("skipped", "failed") for s in states):
                     task.state, task.reason = "skipped", "a task it needs did not finish"
                 elif all(s in ("cached", "run") for s in states):
                     if _blocked_by_validation(plan, task):
@@ -483,6 +490,8 @@ def execute(
 
 def _blocked_by_validation(plan: RunPlan, task: Task) -> bool:
     """Skip a render whose materials failed validation (unless keep_going); True when it was skipped."""
+    if not task.id.startswith("render:"):
+        return False
     failed = [d for d in task.deps if d.startswith("validate:") and plan.tasks[d].result.get("verdict") == "fail"]
     if failed and not plan.keep_going:
         names = ", ".join(plan.tasks[d].product for d in failed)
@@ -499,6 +508,9 @@ def _arguments(plan: RunPlan, task: Task) -> dict:
                   if d.startswith("validate:") and plan.tasks[d].result.get("verdict") == "fail"]  # fmt: skip
         args["header"] = {"validation": "fail: " + ", ".join(failed) + " (rendered with --keep-going)"} if failed else {
             "validation": "pass or warn"}  # fmt: skip
+    if task.id == "reports":
+        done = {plan.out_dir / plan.tasks[d].outputs[0] for d in task.deps if plan.tasks[d].state in ("cached", "run")}
+        args["entries"] = [entry for entry in task.args["entries"] if Path(entry[0]) in done]
     if task.id == "sheet":
         args["products"] = [
             {**p, "label": ("⚠ " if any(_failed_validation(plan, c) for c in p["chunks"]) else "") + p["label"]}
