@@ -3,10 +3,10 @@
 A recipe names the line (illuminant, accuracy or render mode), the validation thresholds, the scene every product is
 rendered in (the tables of a scene file, :mod:`kmpipe.scene`, at the top level: ``[scene]`` without name, product
 and shade, ``[substrate]`` or ``[skin]``, ``[[light]]``, ``[ground]``, ``[camera]``, ``[turntable]``, ``[output]``;
-no ``[[layer]]``), the products and the outputs. Each product has a name,
-a shade, where its material comes from (a recorded CS-2000 session to replay and fit, measurements to fit, or a
-material file; or none, for a look made of other products' materials), its layer stack (top first; ``material`` is
-``"self"`` or another product's name) and optional overrides of the template's mesh, substrate or skin.
+no ``[[layer]]``), the products and the outputs. Each product has a name, a shade, where its material comes from (a
+CS-2000 session to measure live and fit, a recorded session to replay and fit, measurements to fit, or a material
+file; or none, for a look made of other products' materials), its layer stack (top first; ``material`` is ``"self"``
+or another product's name) and optional overrides of the template's mesh, substrate or skin.
 
 Nothing in a recipe is executed: it is data. Input paths are relative to the recipe's folder and only read; every
 output goes under the run's output folder, and an output path that would leave it is refused. Every problem is an
@@ -31,8 +31,8 @@ from kmpipe.validation import Thresholds
 
 #: The material of the product itself, in its layer stack.
 SELF = "self"
-#: Scene-file tables a product may override.
-PRODUCT_OVERRIDES = ("mesh", "substrate", "skin")
+#: Where a product's material can come from.
+SOURCES = ("measure", "replay", "fit", "material")
 
 
 class _Strict(BaseModel):
@@ -66,9 +66,16 @@ class ReplaySource(_Strict):
     plan: str = Field(min_length=1)
 
 
+class MeasureSource(_Strict):
+    plan: str = Field(min_length=1)
+    port: str = Field(min_length=1)
+    baudrate: int = Field(default=115200, gt=0)
+
+
 class ProductInfo(_Strict):
     name: str = Field(min_length=1, max_length=80)
     shade: str | None = None
+    measure: MeasureSource | None = None
     replay: ReplaySource | None = None
     fit: str | None = None
     material: str | None = None
@@ -86,16 +93,16 @@ class ProductInfo(_Strict):
 
     @model_validator(mode="after")
     def _one_source(self) -> ProductInfo:
-        given = [k for k in ("replay", "fit", "material") if getattr(self, k) is not None]
+        given = [k for k in SOURCES if getattr(self, k) is not None]
         if len(given) > 1:
-            raise ValueError(f"give one source of the material (replay, fit or material), not {' and '.join(given)}")
+            raise ValueError(f"give one source of the material ({', '.join(SOURCES)}), not {' and '.join(given)}")
         if not given and not self.layer:
-            raise ValueError("a product needs a source of its material (replay, fit or material) or a layer stack")
+            raise ValueError(f"a product needs a source of its material ({', '.join(SOURCES)}) or a layer stack")
         return self
 
     @property
     def source(self) -> str | None:
-        return next((k for k in ("replay", "fit", "material") if getattr(self, k) is not None), None)
+        return next((k for k in SOURCES if getattr(self, k) is not None), None)
 
 
 class OutputsInfo(_Strict):
@@ -254,6 +261,8 @@ def load_recipe(path: str | Path) -> Recipe:
         if product.replay is not None:
             _existing(recipe, product.replay.log, ("product", i, "replay", "log"))
             _existing(recipe, product.replay.plan, ("product", i, "replay", "plan"))
+        if product.measure is not None:
+            _existing(recipe, product.measure.plan, ("product", i, "measure", "plan"))
         for j, layer in enumerate(product.layer):
             owner = layer.get("material")
             if owner == SELF and product.source is None:

@@ -2,8 +2,10 @@
 
 Tasks (``id``: what it writes under the output folder):
 
-- ``material:P`` (products with a source): replay the recorded CS-2000 session into ``products/P/session/`` and fit
-  it, fit the manifest, or copy the material file; writes ``products/P/material.json``;
+- ``material:P`` (products with a source): measure the sample on the CS-2000 at the recipe's port (live; recorded
+  byte for byte into ``products/P/session.jsonl``; a session cut short is resumed by the next run) or replay a
+  recorded session, into ``products/P/session/``, and fit it; or fit the manifest; or copy the material file; writes
+  ``products/P/material.json``. A live measurement is keyed by its plan and port, so it is measured once;
 - ``validate:P`` (materials fitted from measurements): ``reports/P/report.html`` and ``validation.json``;
 - ``render:P:A-B`` (products with layers): frames A..B of the turntable into ``frames/P/``, a few frames a task so
   that several workers share a product; waits for the materials its layers use and for their validation: a material
@@ -80,7 +82,7 @@ class Task:
 
 
 def do_material(source: str, inputs: dict, out: str) -> dict:
-    """Make a product's material.json in folder ``out``: replay and fit, fit, or copy."""
+    """Make a product's material.json in folder ``out``: measure or replay and fit, fit, or copy."""
     import dataclasses
 
     from rich.console import Console
@@ -98,14 +100,23 @@ def do_material(source: str, inputs: dict, out: str) -> dict:
         shutil.copyfile(inputs["material"], temporary)
         os.replace(temporary, target)
         return {}
-    if source == "replay":
+    if source in ("measure", "replay"):
         session = folder / "session"
-        shutil.rmtree(session, ignore_errors=True)  # a replay starts from the recording's first byte
         quiet = Console(file=open(os.devnull, "w"), force_terminal=False)  # noqa: SIM115 (closed with the console)
-        manifest = run_session(
-            Path(inputs["plan"]), f"replay://{inputs['log']}", out_dir=session, interactive=False, console=quiet
-        )
-        quiet.file.close()
+        if source == "replay":
+            shutil.rmtree(session, ignore_errors=True)  # a replay starts from the recording's first byte
+            port, record, resume = f"replay://{inputs['log']}", None, False
+        else:  # a live session cut short keeps its readings: measure only the rest
+            resume = (session / "session.json").exists()
+            record = folder / ("session-resumed.jsonl" if resume else "session.jsonl")
+            port = inputs["port"]
+        try:
+            manifest = run_session(
+                Path(inputs["plan"]), port, out_dir=session, record=record, resume=resume, interactive=False,
+                baudrate=inputs.get("baudrate", 115200), console=quiet,
+            )  # fmt: skip
+        finally:
+            quiet.file.close()
     else:
         manifest = Path(inputs["manifest"])
     sample = load_sample(manifest)
@@ -230,19 +241,22 @@ def plan_run(
             continue
         folder = out_dir / "products" / slug(product.name)
         base = recipe.base
-        if product.source == "replay":
+        settings: dict = {}
+        if product.source == "measure":
+            inputs = {"plan": base / product.measure.plan}
+            settings = {"port": product.measure.port, "baudrate": product.measure.baudrate}
+        elif product.source == "replay":
             inputs = {"log": base / product.replay.log, "plan": base / product.replay.plan}
         elif product.source == "fit":
             inputs = {"manifest": base / product.fit, **_manifest_inputs(base / product.fit)}
         else:
             inputs = {"material": base / product.material}
         hashes = {name: file_sha256(Path(path)) for name, path in inputs.items()}
-        key = _key("material", product.source, hashes)
+        key = _key("material", product.source, hashes, settings)
         material_key[product.name] = key
+        paths = {k: str(v) for k, v in inputs.items() if k in ("log", "plan", "manifest", "material")}
         add(Task(f"material:{slug(product.name)}", product.name, (), key, (rel(folder / "material.json"),),
-                 do_material, {"source": product.source, "inputs": {k: str(v) for k, v in inputs.items()
-                                                                     if k in ("log", "plan", "manifest", "material")},
-                               "out": str(folder)}))  # fmt: skip
+                 do_material, {"source": product.source, "out": str(folder), "inputs": {**paths, **settings}}))
         if product.source != "material":
             thresholds = {k: getattr(recipe.thresholds, k) for k in recipe.thresholds.__dataclass_fields__}
             report = reports_dir / slug(product.name)

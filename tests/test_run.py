@@ -517,3 +517,42 @@ def test_only_then_a_full_run_completes_the_line(tmp_path, reference):
     assert ran == ALL_TASKS - material_tasks(L1) - render_tasks(L1)
     assert_same_frames(out, reference[1])
     assert os.path.getsize(out / "sheet.png") > 0
+
+
+# ---------------------------------------------------------------------------------------------- live measuring ---
+
+
+def test_a_sample_measured_live_is_measured_once_and_its_recording_replays_to_the_same_material(tmp_path):
+    """A product measured on the (emulated) CS-2000 at the recipe's port: the run records the session; a second run
+    needs no instrument (the emulator is gone); replaying the recording gives the same K and S."""
+    from instruments.cs2000.emulator import Emulator
+    from kmpipe.material import read_material
+
+    folder = tmp_path / "line"
+    folder.mkdir()
+    shutil.copyfile(SAMPLES / "F1" / "plan.toml", folder / "plan.toml")
+    recipe = folder / "recipe.toml"
+    out = tmp_path / "out"
+    with Emulator.from_script(SAMPLES / "F1" / "emulator.toml", time_scale=0.01, link=tmp_path / "cs2000") as emulator:
+        recipe.write_text(
+            f'[line]\nname = "Live"\n\n[[product]]\nname = "F1"\nmeasure = {{ plan = "plan.toml", port = '
+            f'"{emulator.link}" }}\n',
+            encoding="utf-8",
+        )
+        assert run(recipe, out) == cli.EXIT_OK
+    log = out / "products" / "f1" / "session.jsonl"
+    assert json.loads(log.read_text(encoding="utf-8").splitlines()[0])["kmpipe_session_log"] == 1
+    assert run_tasks(recipe, out) == set()  # measured once: the instrument is not needed again
+
+    replayed = tmp_path / "replayed"
+    replayed.mkdir()
+    shutil.copyfile(log, replayed / "F1.jsonl")
+    shutil.copyfile(folder / "plan.toml", replayed / "plan.toml")
+    (replayed / "recipe.toml").write_text(
+        '[line]\nname = "Replayed"\n\n[[product]]\nname = "F1"\nreplay = { log = "F1.jsonl", plan = "plan.toml" }\n',
+        encoding="utf-8",
+    )
+    assert run(replayed / "recipe.toml", tmp_path / "out2") == cli.EXIT_OK
+    live, again = (read_material(o / "products" / "f1" / "material.json") for o in (out, tmp_path / "out2"))
+    np.testing.assert_array_equal(live.K, again.K)
+    np.testing.assert_array_equal(live.S, again.S)
