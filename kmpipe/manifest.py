@@ -268,6 +268,18 @@ def first_validation_error(err: ValidationError) -> dict:
     return sorted(err.errors(), key=lambda e: e["type"] != "extra_forbidden")[0]
 
 
+def input_error(err: ValidationError, where) -> InputError:
+    """The InputError to raise for a pydantic error: its message, at ``where(loc)`` (path, line and field)."""
+    first = first_validation_error(err)
+    message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
+    return InputError(message, **where(tuple(first["loc"])))
+
+
+def located_in(path: Path, text: str):
+    """``where`` for :func:`input_error`: a location in the TOML ``text`` of ``path``."""
+    return lambda loc: {"path": path, "line": toml_line(text, loc), "field": format_field(loc)}
+
+
 def load_manifest(path: str | Path) -> Manifest:
     """Read and validate a sample manifest; InputError (file, line, field) on any problem."""
     path = Path(path)

@@ -31,8 +31,8 @@ from kmpipe.errors import InputError
 from kmpipe.manifest import (
     Thickness,
     field_line,
-    first_validation_error,
-    format_field,
+    input_error,
+    located_in,
     parse_thickness_mm,
     read_toml,
     toml_line,
@@ -100,10 +100,7 @@ def load_plan(path: Path) -> Plan:
     try:
         plan = Plan.model_validate(data)
     except ValidationError as err:
-        first = first_validation_error(err)
-        loc = tuple(first["loc"])
-        message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
-        raise InputError(message, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
+        raise input_error(err, located_in(path, text)) from None
     names = [b.name for b in plan.backing]
     for i, film in enumerate(plan.film):
         if film.over not in names:

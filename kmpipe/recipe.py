@@ -24,7 +24,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
-from kmpipe.manifest import first_validation_error, format_field, read_toml, toml_line
+from kmpipe.manifest import input_error, located_in, read_toml, toml_line
 from kmpipe.optical_tables import parse_mode
 from kmpipe.scene import MAX_LAYERS, SceneFile
 from kmpipe.validation import Thresholds
@@ -175,7 +175,7 @@ class Recipe:
 
     def where(self, loc: tuple) -> dict:
         """InputError's path, line and field for a location in the recipe."""
-        return {"path": self.path, "line": toml_line(self.text, loc), "field": format_field(loc)}
+        return located_in(self.path, self.text)(loc)
 
     def product(self, name: str) -> ProductInfo:
         return next(p for p in self.info.product if p.name == name)
@@ -247,10 +247,7 @@ def load_recipe(path: str | Path) -> Recipe:
     try:
         info = RecipeFile.model_validate(data)
     except ValidationError as err:
-        first = first_validation_error(err)
-        loc = tuple(first["loc"])
-        message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
-        raise InputError(message, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
+        raise input_error(err, located_in(path, text)) from None
     recipe = Recipe(path, text, info, _thresholds(info.validation, path, text))
     _check_template(recipe)
     names = {p.name for p in info.product}
@@ -319,10 +316,7 @@ def _check_product_scene(recipe: Recipe, index: int) -> None:
     try:
         SceneFile.model_validate(data)
     except ValidationError as err:
-        first = first_validation_error(err)
-        loc = tuple(first["loc"])
-        message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
-        raise InputError(message, **recipe.scene_where(index)(loc)) from None
+        raise input_error(err, recipe.scene_where(index)) from None
     where = recipe.scene_where(index)
     for j, layer in enumerate(product.layer):
         mapping = layer.get("thickness_map")

@@ -31,11 +31,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from kmpipe.errors import InputError
 from kmpipe.manifest import (
     ThicknessOrZero,
-    first_validation_error,
-    format_field,
+    input_error,
+    located_in,
     parse_thickness_mm,
     read_toml,
-    toml_line,
 )
 from kmpipe.material import Material, read_material
 from kmpipe.optical_tables import parse_mode
@@ -330,11 +329,7 @@ def load_scene(path: str | Path) -> Scene:
     """Read and check a scene file, its materials and its mesh; InputError naming the file, line and field."""
     path = Path(path)
     text, data = read_toml(path, "scene file")
-
-    def where(loc: tuple) -> dict:
-        return {"path": path, "line": toml_line(text, loc), "field": format_field(loc)}
-
-    return build_scene(data, path, path.parent, where)
+    return build_scene(data, path, path.parent, located_in(path, text))
 
 
 def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
@@ -346,10 +341,7 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
     try:
         info = SceneFile.model_validate(data)
     except ValidationError as err:
-        first = first_validation_error(err)
-        loc = tuple(first["loc"])
-        message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
-        raise InputError(message, **where(loc)) from None
+        raise input_error(err, where) from None
 
     materials, thicknesses, hashes, sources = [], [], [], {}
     for i, layer in enumerate(info.layer):
