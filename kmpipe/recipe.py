@@ -25,8 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from kmpipe.errors import InputError
 from kmpipe.manifest import input_error, located_in, read_toml, toml_line
-from kmpipe.optical_tables import parse_mode
-from kmpipe.scene import MAX_LAYERS, SceneFile
+from kmpipe.scene import MAX_LAYERS, RenderSettings, SceneFile
 from kmpipe.validation import Thresholds
 
 #: The material of the product itself, in its layer stack.
@@ -39,18 +38,8 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class LineInfo(_Strict):
+class LineInfo(RenderSettings):
     name: str = Field(min_length=1)
-    illuminant: str = "D65"
-    accuracy: float | None = Field(default=None, gt=0.0)
-    mode: str | None = None
-
-    @field_validator("mode")
-    @classmethod
-    def _known_mode(cls, value: str | None) -> str | None:
-        if value is not None:
-            parse_mode(value)
-        return value
 
 
 class ValidationInfo(_Strict):

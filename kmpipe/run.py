@@ -43,19 +43,12 @@ from kmpipe import __version__
 from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
 from kmpipe.recipe import Recipe, inside, load_recipe, slug
+from kmpipe.sample import file_sha256
 
 #: Frames of a product rendered by one task.
 FRAMES_PER_TASK = 4
 #: Where task records live, under the output folder.
 RECORDS = Path(".kmpipe") / "tasks"
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _key(*parts) -> str:

@@ -53,16 +53,12 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class SceneInfo(_Strict):
-    name: str = Field(min_length=1)
-    product: str | None = None
-    shade: str | None = None
+class RenderSettings(_Strict):
+    """The illuminant and the render planner's accuracy target or forced mode (a scene's, or a product line's)."""
+
     illuminant: str = "D65"
-    mesh: str = Field(default="card", min_length=1)
-    resolution: tuple[_PIXELS, _PIXELS] = (256, 256)
     accuracy: float | None = Field(default=None, gt=0.0)
     mode: str | None = None
-    shadow_map: int | None = Field(default=None, ge=64, le=8192)
 
     @field_validator("illuminant")
     @classmethod
@@ -77,6 +73,15 @@ class SceneInfo(_Strict):
         if value is not None:
             parse_mode(value)
         return value
+
+
+class SceneInfo(RenderSettings):
+    name: str = Field(min_length=1)
+    product: str | None = None
+    shade: str | None = None
+    mesh: str = Field(default="card", min_length=1)
+    resolution: tuple[_PIXELS, _PIXELS] = (256, 256)
+    shadow_map: int | None = Field(default=None, ge=64, le=8192)
 
 
 class SubstrateInfo(_Strict):
