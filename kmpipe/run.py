@@ -29,6 +29,7 @@ functions are plain module functions of file paths and settings; the output fold
 from __future__ import annotations
 
 import concurrent.futures
+import datetime
 import hashlib
 import json
 import multiprocessing
@@ -301,10 +302,11 @@ def plan_run(
             for name, shade, chunks, folder, n in rows
         ]  # fmt: skip
         header = f"{info.line.name} · {info.line.illuminant}"
+        dated = f"{header} · {datetime.date.today().isoformat()}"  # the date the sheet is made, not part of its key
         add(Task("sheet", None, tuple(c for p in products for c in p["chunks"]),
                  _key("sheet", [tasks[c].key for p in products for c in p["chunks"]], columns, header),
                  (rel(sheet),), do_sheet,
-                 {"products": products, "out": str(sheet), "header": header, "columns": columns}))  # fmt: skip
+                 {"products": products, "out": str(sheet), "header": dated, "columns": columns}))  # fmt: skip
 
     plan = RunPlan(recipe, out_dir, tasks, keep_going)
     for task in tasks.values():
