@@ -196,7 +196,7 @@ def _stack_input(plan: ScenePlan, scene: Scene):
     substrate_map = None
     if scene.albedo is not None:
         basis = basis_spectra(substrate, first.space)
-        substrate_map = (texture_weights(scene.albedo, basis, first.space), basis @ reduce)
+        substrate_map = (_albedo_weights(scene, scene.albedo, basis, first.space), basis @ reduce)
     layer_tables = []
     for material in scene.materials:
         table = tables[material.name]
@@ -204,6 +204,15 @@ def _stack_input(plan: ScenePlan, scene: Scene):
         layer_tables.append(LayerTable(x, np.clip(table.R0, 0.0, 1.0), np.clip(table.T, 0.0, 1.0)))
     substrate_channels = np.clip(substrate @ reduce, 0.0, 1.0)
     return ChannelStack(layer_tables, list(scene.thicknesses_mm), substrate_channels, to_rgb, substrate_map)
+
+
+def _albedo_weights(scene: Scene, albedo: np.ndarray, basis: np.ndarray, space) -> np.ndarray:
+    """:func:`kmpipe.albedo_texture.texture_weights`, its refusal said as bad input naming the scene's field."""
+    try:
+        return texture_weights(albedo, basis, space)
+    except ValueError as err:
+        key = "skin" if scene.info.skin is not None else "substrate"
+        raise InputError(str(err), path=scene.path, field=f"{key}.albedo_texture") from None
 
 
 def _on_grid(value: np.ndarray, rows: int, columns: int) -> np.ndarray:
@@ -236,7 +245,7 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
     basis = None
     if scene.albedo is not None:
         basis = basis_spectra(substrate, space)
-        weights = texture_weights(_on_grid(scene.albedo, rows, columns), basis, space)
+        weights = _albedo_weights(scene, _on_grid(scene.albedo, rows, columns), basis, space)
         columns_of_grid.append(weights.reshape(rows * columns, 3))
     combinations, inverse = np.unique(np.hstack(columns_of_grid), axis=0, return_inverse=True)
     reflectance = np.empty((len(combinations), 3))

@@ -365,3 +365,16 @@ def test_a_missing_albedo_texture_exits_2(tmp_path, material_file, capsys):
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert "no.png" in err and "substrate.albedo_texture" in err
+
+
+def test_an_albedo_texture_on_a_black_substrate_exits_2(tmp_path, material_file, capsys):
+    """Nothing can tint a black spectrum: the texture is refused naming the field, not an internal error."""
+    from renderer.image_io import write_exr
+
+    write_exr(tmp_path / "albedo.exr", np.full((2, 2, 3), 0.3), {}, half=False)
+    scene_path = write_scene(tmp_path, material_file)
+    text = scene_path.read_text().replace("reflectance = 0.5", 'reflectance = 0.0\nalbedo_texture = "albedo.exr"')
+    scene_path.write_text(text, encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "substrate.albedo_texture" in err and "black" in err
