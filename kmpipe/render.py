@@ -119,12 +119,28 @@ def plan_scene(scene: Scene) -> ScenePlan:
             f"shadow maps: {sum(wanted)} of {len(lights)} lights cast shadows of {casters}"
             f"{' onto the ground' if scene.info.ground is not None else ''}; {size} x {size} texels, 3 x 3 PCF"
         )
+    _check_shadowing_point_lights(scene, wanted)
     if scene.info.ground is None:
         notes.append("ground: none")
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
     notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
     notes += _skin_notes(scene)
     return ScenePlan(tables, size, tuple(wanted), tuple(notes))
+
+
+def _check_shadowing_point_lights(scene: Scene, shadows: list[bool]) -> None:
+    """A point light's shadow map looks at the scene from outside it: refuse one inside the scene's reach."""
+    centre, radius, _ = _bounds(scene)
+    reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
+    for index, (light, casts) in enumerate(zip(scene.info.light, shadows, strict=True)):
+        if casts and light.kind == "point" and np.linalg.norm(np.subtract(light.position, centre)) <= 1.05 * reach:
+            raise InputError(
+                f"a point light that casts shadows must stand outside the scene (more than {1.05 * reach:.0f} mm "
+                f"from its centre {tuple(round(float(c), 1) for c in centre)}, the product"
+                f"{' and its ground' if scene.info.ground is not None else ''}): move it, or set shadows = false",
+                path=scene.path,
+                field=f"light[{index + 1}].position",
+            )
 
 
 def _skin_notes(scene: Scene) -> list[str]:

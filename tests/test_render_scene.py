@@ -378,3 +378,13 @@ def test_an_albedo_texture_on_a_black_substrate_exits_2(tmp_path, material_file,
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert "substrate.albedo_texture" in err and "black" in err
+
+
+def test_a_shadowing_point_light_inside_the_scene_exits_2(tmp_path, material_file, capsys):
+    light = '\n[[light]]\nkind = "point"\nposition = [0.0, 0.0, 10.0]\n'
+    scene_path = write_scene(tmp_path, material_file, light + "\n[ground]\nreflectance = 0.3\n")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "light[2].position" in err and "shadows = false" in err
+    scene_path.write_text(scene_path.read_text().replace(light, light + "shadows = false\n"), encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
