@@ -380,6 +380,18 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
             f"{err} (expected one of {', '.join(BUILTIN_MESHES)} or a mesh file)", **where(("scene", "mesh"))
         ) from None
     key = "skin" if info.skin is not None else "substrate"
+    uv = getattr(mesh.visual, "uv", None)
+    if uv is None or len(uv) != len(mesh.vertices):
+        mapped = [i for i, layer in enumerate(info.layer) if layer.thickness_map is not None]
+        if mapped or info.base.albedo_texture is not None:
+            field = ("layer", mapped[0], "thickness_map") if mapped else (key, "albedo_texture")
+            raise InputError(
+                f"the mesh {info.scene.mesh} has no texture coordinates (uv), which thickness maps and albedo "
+                "textures need; give a mesh with uv or uniform thicknesses",
+                **where(field),
+            )
+        mesh = mesh.copy()
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)))  # uniform films: unused
     substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where((key, "reflectance")))
     albedo = None
     if info.base.albedo_texture is not None:

@@ -388,3 +388,19 @@ def test_a_shadowing_point_light_inside_the_scene_exits_2(tmp_path, material_fil
     assert "light[2].position" in err and "shadows = false" in err
     scene_path.write_text(scene_path.read_text().replace(light, light + "shadows = false\n"), encoding="utf-8")
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+
+
+def test_a_mesh_file_without_uv_renders_uniform_films_and_refuses_maps(tmp_path, material_file, capsys):
+    import trimesh
+
+    box = trimesh.creation.box((30.0, 30.0, 30.0))
+    box.export(tmp_path / "box.ply")
+    scene_path = write_scene(tmp_path, material_file)
+    scene_path.write_text(scene_path.read_text().replace('mesh = "card"', 'mesh = "box.ply"'), encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    write_map(tmp_path / "map.png", np.ones((2, 2)))
+    text = scene_path.read_text().replace('thickness = "20 um"', 'thickness_map = { file = "map.png", max = "9 um" }')
+    scene_path.write_text(text, encoding="utf-8")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "no texture coordinates" in err and "layer[1].thickness_map" in err
