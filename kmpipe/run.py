@@ -313,6 +313,9 @@ def plan_run(
         result = _cached(out_dir, task)
         if result is not None:
             task.state, task.result = "cached", result
+    for task in tasks.values():  # a verdict already known: a failed material's renders are skipped now
+        if task.state == "pending" and all(tasks[d].state == "cached" for d in task.deps if d.startswith("validate:")):
+            _blocked_by_validation(plan, task)
     return plan
 
 
