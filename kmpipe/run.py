@@ -401,7 +401,7 @@ class _Dask:
             )
             address = self.cluster.scheduler_address
         try:
-            self.client = Client(address, timeout=30)
+            self.client = Client(address, timeout=10)
         except OSError as err:
             raise InputError(f"cannot reach the Dask scheduler at {address}: {err}", field="--scheduler") from None
 
