@@ -429,22 +429,23 @@ def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
-def _cmd_render(args: argparse.Namespace, console: Console) -> int:
+def _progress(console: Console):
+    """A transient progress bar: description, bar, done of total, time elapsed."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    return Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        console=console, transient=True,
+    )  # fmt: skip
+
+
+def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.render import render_scene
 
     if args.output.exists() and not args.output.is_dir():
         raise InputError("exists and is not a folder", path=args.output, field="-o")
-    with Progress(
-        TextColumn("rendering frames"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-        transient=True,
-    ) as progress:
-        task = progress.add_task("frames", total=None)
+    with _progress(console) as progress:
+        task = progress.add_task("rendering frames", total=None)
 
         def on_frame(done: int, total: int) -> None:
             progress.update(task, completed=done, total=total)
@@ -466,8 +467,6 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_run(args: argparse.Namespace, console: Console) -> int:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from kmpipe.run import execute, plan_run
 
     out_dir = args.output or args.recipe.parent / "out"
@@ -477,10 +476,7 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     if args.dry_run:
         console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
         return EXIT_OK
-    with Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-        console=console, transient=True,
-    ) as progress:  # fmt: skip
+    with _progress(console) as progress:
         bar = progress.add_task("tasks", total=None)
 
         def on_task(task, done: int, total: int) -> None:

@@ -300,8 +300,8 @@ def _check_template(recipe: Recipe) -> None:
 def _check_product_scene(recipe: Recipe, index: int) -> None:
     """Validate a product's composed scene as a scene file (materials stand in by name; files exist later)."""
     product = recipe.info.product[index]
-    placeholder = {p.name: Path(f"{slug(p.name)}.json") for p in recipe.info.product}
-    data = recipe.scene_data(product, placeholder)
+    stand_ins = {p.name: Path(f"{slug(p.name)}.json") for p in recipe.info.product}
+    data = recipe.scene_data(product, stand_ins)
     try:
         SceneFile.model_validate(data)
     except ValidationError as err:
