@@ -6,7 +6,8 @@ module takes its ``GL`` from here so that the order cannot go wrong.
 
 The context is created on the first :func:`make_current` and lives until the process ends. A process forked after
 the context exists hangs inside Mesa, so worker processes must use the ``spawn`` start method; using the context from
-a forked child raises :class:`RuntimeError` instead of hanging.
+a forked child raises :class:`RuntimeError` instead of hanging. The one context serves one thread at a time: a pass
+holds :data:`lock` from its first GL call to its last (a Dask worker may run tasks in several threads).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import ctypes
 import os
 import sys
+import threading
 
 _MISSING = (
     "the OSMesa offscreen OpenGL library could not be loaded: install the Debian package libosmesa6 "
@@ -38,7 +40,10 @@ except (ImportError, OSError, AttributeError) as _error:
 if type(OpenGL.platform.PLATFORM).__name__ != "OSMesaPlatform":
     raise RuntimeError(f"PyOpenGL chose {type(OpenGL.platform.PLATFORM).__name__}, not OSMesa: {_MISSING}")
 
-__all__ = ["GL", "gl_version", "make_current"]
+__all__ = ["GL", "gl_version", "lock", "make_current"]
+
+#: Held by a rendering pass for all its GL work: the process's one context is current in one thread at a time.
+lock = threading.RLock()
 
 #: Core-profile versions tried in order, best first.
 _VERSIONS = ((4, 5), (3, 3))

@@ -404,7 +404,7 @@ def render_layers(
     np.ndarray
         Linear RGB, float32, shape (height, width, 3), top row first.
     """
-    with SurfacePass(
+    with context.lock, SurfacePass(
         mesh, camera, lights, stack, width, height, specular=specular, substrate_specular=substrate_specular,
         model=model, props=props, shadow_map_size=shadow_map_size,
     ) as surface_pass, Framebuffer(width, height) as target:  # fmt: skip

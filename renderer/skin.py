@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from renderer import context
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.layers import ChannelStack, Precomposed, Prop, Specular, SurfacePass
@@ -164,7 +165,7 @@ def render_skin(
     :data:`SKIN_SPECULAR`) and ``scattering`` the subsurface blur (None: no blur, the result equals
     the layer pass's).
     """
-    with SurfacePass(
+    with context.lock, SurfacePass(
         mesh, camera, lights, stack, width, height, specular=specular, substrate_specular=skin_specular,
         model=model, props=props, shadow_map_size=shadow_map_size,
     ) as surface_pass, Framebuffer(width, height, targets=3) as target:  # fmt: skip
