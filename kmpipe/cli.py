@@ -695,7 +695,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a product line's recipe: replay or fit, validate, render turntables, sheets; cached, resumable",
         description="Runs every stage the recipe needs as a graph of tasks cached by the content of their inputs: "
         "a second run does nothing, a changed product re-runs that product's tasks, a killed run resumes. Exit "
-        "status 0: done; 1: a product failed validation (and was not rendered) or was skipped; 2: bad input.",
+        "status 0: done; 1: a product failed validation (not rendered unless --keep-going) or a task was skipped; 2: "
+        "bad input.",
     )
     run.add_argument("recipe", type=Path, help="recipe file, TOML (docs/formats.md)")
     run.add_argument("-o", "--output", type=Path, help="output folder (default: out/ beside the recipe)")
