@@ -76,40 +76,21 @@ def main() -> None:
               "slows the timings (the numbers assume an idle machine)", file=sys.stderr)
     parts: list[tuple[str, list[Table], float]] = []
 
-    print("closed-form inversions ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    inversion = bench_inversion.run(arguments.spectra)
-    parts.append(("Closed-form inversion", bench_inversion.tables(inversion), time.perf_counter() - clock))
+    def measure(title: str, module, *args):
+        """Run one benchmark module, keep its tables and time under ``title``, return its results."""
+        print(f"{title} ...", file=sys.stderr, flush=True)
+        clock = time.perf_counter()
+        results = module.run(*args)
+        parts.append((title, module.tables(results), time.perf_counter() - clock))
+        return results
 
-    print("joint fit ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    fit = bench_fit.run(arguments.samples)
-    parts.append(("Joint fit", bench_fit.tables(fit), time.perf_counter() - clock))
-
-    print("wavelength grid ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    grid = bench_fit_grid.run(arguments.grid_samples)
-    parts.append(("Wavelength grid of the fit", bench_fit_grid.tables(grid), time.perf_counter() - clock))
-
-    print("render modes ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    mode_rows = bench_render_modes.run()
-    parts.append(("Render modes", bench_render_modes.tables(mode_rows), time.perf_counter() - clock))
-
-    print("rendering ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    render_rows = bench_render.run()
-    parts.append(("Rendering", bench_render.tables(render_rows), time.perf_counter() - clock))
-
-    print("makeup on skin ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    skin_rows = bench_skin.run()
-    parts.append(("Makeup on skin", bench_skin.tables(skin_rows), time.perf_counter() - clock))
-
-    print("product line ...", file=sys.stderr, flush=True)
-    clock = time.perf_counter()
-    run_rows = bench_run.run()
-    parts.append(("Product line", bench_run.tables(run_rows), time.perf_counter() - clock))
+    inversion = measure("Closed-form inversion", bench_inversion, arguments.spectra)
+    fit = measure("Joint fit", bench_fit, arguments.samples)
+    measure("Wavelength grid of the fit", bench_fit_grid, arguments.grid_samples)
+    mode_rows = measure("Render modes", bench_render_modes)
+    render_rows = measure("Rendering", bench_render)
+    skin_rows = measure("Makeup on skin", bench_skin)
+    run_rows = measure("Product line", bench_run)
     total = time.perf_counter() - started
 
     summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, run_rows)
