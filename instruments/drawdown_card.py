@@ -27,6 +27,7 @@ import math
 import os
 import re
 import secrets
+import stat
 import struct
 import tomllib
 import zlib
@@ -48,6 +49,15 @@ DICTIONARIES = tuple(sorted(name for name in dir(cv2.aruco) if name.startswith("
 PRINT_DPI = 300.0
 """Resolution of the printable card written by :func:`write_card` (dots per inch)."""
 
+MAX_CARD_MM = 500.0
+"""Longest side of a card (mm), checked when a layout is made: larger than any drawdown card a printer takes."""
+
+MAX_CARD_PIXELS = 64_000_000
+"""Most pixels :func:`render_card` draws (a 500 x 500 mm card at 300 dpi is 35 million, 105 MB as 8-bit RGB)."""
+
+MAX_LAYOUT_BYTES = 4 << 20
+"""Largest layout file read (bytes)."""
+
 OUTLINE_CLEARANCE_MM = 1.0
 """Extra distance (mm) a region keeps from a marker's quiet zone: room for the region's printed outline."""
 
@@ -55,6 +65,8 @@ RANSAC_THRESHOLD_PX = 3.0
 """Maximum reprojection error (px) of a marker corner counted as an inlier when the homography is fitted."""
 
 _NAME = re.compile(r"[A-Za-z0-9_-]+")  # region names, and the keys TOML writes without quotes
+#: How far inside its edges a region is sampled (mm): away from the drawdown's edges and the print's bleed.
+SAMPLING_MARGIN_MM = 2.0
 _CARD_KEYS = ("width_mm", "height_mm", "dictionary")
 _MARKER_KEYS = ("id", "x_mm", "y_mm", "size_mm")
 _PRINTED_KEYS = ("x_mm", "y_mm", "w_mm", "h_mm", "gray")
@@ -190,10 +202,10 @@ def _finite_positive(value: float) -> bool:
 
 def _check_layout(layout: Layout) -> None:
     """Raise :class:`LayoutError` for the first broken rule, naming table[index].field."""
-    if not _finite_positive(layout.width_mm):
-        raise LayoutError(f"card.width_mm: must be a finite number > 0, got {layout.width_mm!r}")
-    if not _finite_positive(layout.height_mm):
-        raise LayoutError(f"card.height_mm: must be a finite number > 0, got {layout.height_mm!r}")
+    for key in ("width_mm", "height_mm"):
+        value = getattr(layout, key)
+        if not (_finite_positive(value) and value <= MAX_CARD_MM):
+            raise LayoutError(f"card.{key}: must be a finite number > 0 and at most {MAX_CARD_MM:g} mm, got {value!r}")
     if layout.dictionary not in DICTIONARIES:
         raise LayoutError(
             f"card.dictionary: unknown ArUco dictionary {layout.dictionary!r}; "
@@ -272,9 +284,13 @@ def _check_rectangle(item: PrintedArea | Region, where: str, layout: Layout) -> 
     for key in ("x_mm", "y_mm"):
         if not math.isfinite(getattr(item, key)):
             raise LayoutError(f"{where}.{key}: must be a finite number, got {getattr(item, key)!r}")
+    smallest = 2 * SAMPLING_MARGIN_MM + 1.0 if isinstance(item, Region) else 0.0
     for key in ("w_mm", "h_mm"):
-        if not _finite_positive(getattr(item, key)):
-            raise LayoutError(f"{where}.{key}: must be a finite number > 0, got {getattr(item, key)!r}")
+        value = getattr(item, key)
+        if not (_finite_positive(value) and value >= smallest):
+            least = f"at least {smallest:g} mm (sampled {SAMPLING_MARGIN_MM:g} mm inside its edges)" if smallest else (
+                "> 0")  # fmt: skip
+            raise LayoutError(f"{where}.{key}: must be a finite number {least}, got {value!r}")
     x0, y0, x1, y1 = _box(item)
     if x0 < 0 or x1 > layout.width_mm:
         raise LayoutError(f"{where}.x_mm, w_mm: {x0:g}-{x1:g} mm lies outside the card (0-{layout.width_mm:g} mm)")
@@ -302,17 +318,30 @@ def load_layout(path: str | os.PathLike) -> Layout:
     """
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+        data = tomllib.loads(_read_layout_text(path))
     except OSError as error:
         raise LayoutError(f"{path}: cannot read the layout ({error.strerror or error})") from None
     except UnicodeDecodeError as error:
         raise LayoutError(f"{path}: not UTF-8 text ({error.reason} at byte {error.start})") from None
     except tomllib.TOMLDecodeError as error:
         raise LayoutError(f"{path}: not valid TOML ({error})") from None
+    except RecursionError:
+        raise LayoutError(f"{path}: not a layout: its arrays or tables are nested too deeply") from None
     try:
         return _layout_from_dict(data)
     except LayoutError as error:
         raise LayoutError(f"{path}: {error}") from None
+
+
+def _read_layout_text(path: Path) -> str:
+    """The text of a layout file: a regular file (never a device or a FIFO) of at most MAX_LAYOUT_BYTES bytes."""
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise LayoutError(f"{path}: not a regular file; expected a layout TOML file")
+    with open(path, "rb") as handle:
+        data = handle.read(MAX_LAYOUT_BYTES + 1)
+    if len(data) > MAX_LAYOUT_BYTES:
+        raise LayoutError(f"{path}: larger than {MAX_LAYOUT_BYTES >> 20} MiB, the limit for a layout file")
+    return data.decode("utf-8-sig")
 
 
 def _layout_from_dict(data: dict[str, Any]) -> Layout:
@@ -532,6 +561,11 @@ def render_card(
     """
     if not (math.isfinite(px_per_mm) and px_per_mm > 0):
         raise ValueError(f"px_per_mm must be a finite number > 0, got {px_per_mm!r}")
+    if round(layout.width_mm * px_per_mm) * round(layout.height_mm * px_per_mm) > MAX_CARD_PIXELS:
+        raise ValueError(
+            f"a {layout.width_mm:g} x {layout.height_mm:g} mm card at {px_per_mm:g} px/mm exceeds {MAX_CARD_PIXELS} "
+            "pixels"
+        )
     colors = dict(region_colors or {})
     unknown = sorted(set(colors) - {r.name for r in layout.regions})
     if unknown:
@@ -760,7 +794,7 @@ def sample_region(
     region: Region,
     *,
     px_per_mm: float | None = None,
-    margin_mm: float = 2.0,
+    margin_mm: float = SAMPLING_MARGIN_MM,
     trim: float = 0.1,
     mask: np.ndarray | None = None,
 ) -> RegionSample:

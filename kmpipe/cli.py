@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import errno
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -17,12 +19,16 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from kmpipe import __version__
+from kmpipe import __version__, files
 from kmpipe.errors import InputError
 from kmpipe.flags import Flag
-from kmpipe.manifest import METHODS, parse_grid
+from kmpipe.manifest import MAX_SMOOTHNESS, METHODS, parse_grid
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 70
+#: Errors of the user's file system, not of kmpipe: a path named too long, a loop of links, no permission, a full
+#: or read-only disk. Anywhere they arise they are bad input (exit 2) naming the path.
+USER_FILE_SYSTEM_ERRORS = {errno.ENAMETOOLONG, errno.ELOOP, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS,
+                           errno.EDQUOT}  # fmt: skip
 
 #: Wavelengths (nm) shown in the summary table of ``kmpipe fit``.
 SUMMARY_WAVELENGTHS = (450.0, 550.0, 650.0)
@@ -54,7 +60,7 @@ def _number_arg(low: float, high: float, *, low_included: bool, what: str):
 
 
 _noise_arg = _number_arg(0.0, 0.5, low_included=False, what="a standard deviation of reflectance in (0, 0.5)")
-_smoothness_arg = _number_arg(0.0, float("inf"), low_included=True, what="a finite number >= 0")
+_smoothness_arg = _number_arg(0.0, MAX_SMOOTHNESS, low_included=True, what=f"a number in [0, {MAX_SMOOTHNESS:g})")
 _positive_arg = _number_arg(0.0, float("inf"), low_included=False, what="a positive number")
 
 
@@ -64,13 +70,6 @@ def _grid_arg(text: str) -> str:
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err)) from None
     return text
-
-
-def _refuse_overwriting_inputs(output: Path, inputs) -> None:
-    resolved = output.resolve()
-    for path in inputs:
-        if Path(path).resolve() == resolved:
-            raise InputError("is one of the inputs; kmpipe never overwrites its inputs", path=output, field="-o")
 
 
 def _summary_table(materials: list[tuple[Path, object]]) -> Table:
@@ -99,8 +98,8 @@ def _summary_table(materials: list[tuple[Path, object]]) -> Table:
             f"{f.name.lower()} x{int(np.count_nonzero(material.flags & f))}" for f in Flag if np.any(material.flags & f)
         ]
         table.add_row(
-            material.name,
-            material.method,
+            escape(material.name),
+            escape(material.method),
             *cells,
             f"{material.S[j]:.3g}",
             f"{worst:.1e}",
@@ -121,10 +120,18 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
             path=args.output,
             field="-o",
         )
+    if to_folder:
+        files.output_folder(args.output)
+    else:
+        files.output_file(args.output, inputs=args.manifest)
     written = []
     for manifest in args.manifest:
         sample = load_sample(manifest, grid=args.grid)
-        output = args.output / f"{sample.name}.json" if to_folder else args.output
+        if to_folder:
+            name = files.safe_name(sample.name, path=manifest, field="sample.name")
+            output = files.within(args.output, f"{name}.json", field="sample.name")
+        else:
+            output = args.output
         if any(path == output for path, _ in written):
             raise InputError(
                 f"names sample {sample.name!r}, like an earlier manifest; each sample needs its own name "
@@ -132,7 +139,7 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
                 path=manifest,
                 field="sample.name",
             )
-        _refuse_overwriting_inputs(output, sample.inputs)
+        files.refuse_inputs(output, [*args.manifest, *sample.inputs])
         material = fit_sample(
             sample,
             method=args.method,
@@ -149,13 +156,14 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
             f"wrote {path}  ({material.name}: {material.method}, {len(material.labels)} "
             f"{'wavelengths' if material.wavelengths is not None else 'channels'})",
             highlight=False,
+            markup=False,
         )
     return EXIT_OK
 
 
 def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid, write_spectra_csv
-    from kmpipe.white import certified_reflectance, radiance_to_reflectance
+    from kmpipe.white import ReadingSource, certified_reflectance, radiance_to_reflectance
 
     def column_ref(text: str, option: str) -> tuple[Path, str]:
         file, sep, column = text.rpartition(":")
@@ -163,6 +171,11 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
             raise InputError(f"expected FILE:COLUMN, got {text!r}", field=option)
         return Path(file), column
 
+    certified_file = None if args.certified.startswith("builtin:") else _certified_file(args.certified)
+    inputs = [args.radiance, column_ref(args.white, "--white")[0], certified_file]
+    if args.dark:
+        inputs.append(column_ref(args.dark, "--dark")[0])
+    files.output_file(args.output, inputs=inputs)
     table = read_spectra_csv(args.radiance)
     if table.quantity != "radiance":
         raise InputError(
@@ -186,12 +199,12 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
     white = reference(args.white, "--white")
     dark = reference(args.dark, "--dark") if args.dark else None
     certified = certified_reflectance(args.certified, grid, base_dir=Path.cwd())
-    _refuse_overwriting_inputs(args.output, [args.radiance, column_ref(args.white, "--white")[0]])
+    def source(column: str) -> ReadingSource:  # white, dark and sample may each come from another file
+        return ReadingSource(white=args.white, dark=args.dark, samples=(f"{args.radiance}:{column}",),
+                             labels=tuple(table.sample_labels))  # fmt: skip
+
     values = np.array(
-        [
-            radiance_to_reflectance(table.column(c), white, certified, dark=dark, source=f"{args.radiance}:{c}")
-            for c in table.columns
-        ]
+        [radiance_to_reflectance(table.column(c), white, certified, dark=dark, source=source(c)) for c in table.columns]
     )
     metadata = dict(table.metadata)
     metadata.update(
@@ -203,8 +216,17 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
         metadata["dark_reading"] = args.dark
     out = SpectralTable(wavelengths=grid, channels=None, columns=table.columns, values=values, metadata=metadata)
     write_spectra_csv(out, args.output)
-    console.print(f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}")
+    console.print(
+        f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}", markup=False
+    )
     return EXIT_OK
+
+
+def _certified_file(spec: str) -> Path:
+    """The file of a ``--certified FILE[:COLUMN]`` (a column is the text after the last colon, if that leaves a
+    file that exists)."""
+    file, sep, _ = spec.rpartition(":")
+    return Path(file) if sep and file and Path(file).exists() else Path(spec)
 
 
 def _material_files(target: Path) -> list[Path]:
@@ -215,16 +237,16 @@ def _material_files(target: Path) -> list[Path]:
         found = []
         for path in sorted(target.glob("*.json")):
             try:
-                head = path.read_text(encoding="utf-8")[:4096]
-            except (OSError, UnicodeDecodeError):
+                head = files.read_head(path, 4096)
+            except InputError:
+                found.append(path)  # not a regular file: reported as broken, the others go on
                 continue
-            if f'"{FORMAT}"' in head:
+            if f'"{FORMAT}"'.encode() in head:
                 found.append(path)
         if not found:
             raise InputError(f'holds no kmpipe material files (*.json with "format": "{FORMAT}")', path=target)
         return found
-    if not target.exists():
-        raise InputError("does not exist", path=target)
+    files.regular_file(target, "material")
     return [target]
 
 
@@ -246,7 +268,7 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
     if not illuminants:
         raise InputError("expected one or more illuminant names, e.g. D65,A", field="--illuminant")
     base = args.material if args.material.is_dir() else args.material.parent
-    out_dir = args.output or base / "reports"
+    out_dir = files.output_folder(args.output or base / "reports", create=False)
     entries, broken = [], []
     for path in materials:
         try:
@@ -273,19 +295,19 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
     for report, _ in entries:
         worst = report.worst_delta_e
         table.add_row(
-            report.material.name,
+            escape(report.material.name),
             f"[{colours[report.verdict]}]{report.verdict}[/]",
             "n/a" if worst is None else f"{worst:.2f}",
             escape(", ".join(report.reasons)) or "none",
         )
     for path, err in broken:
-        table.add_row(path.name, "[red]error[/]", "", escape(err.message))
+        table.add_row(escape(path.name), "[red]error[/]", "", escape(err.message))
     console.print(table)
     if len(materials) == 1:
-        console.print(f"report: {entries[0][1]}", highlight=False)
+        console.print(f"report: {entries[0][1]}", highlight=False, markup=False)
     elif entries:
         index = write_index([(report_to_dict(report), page) for report, page in entries], out_dir)
-        console.print(f"index of {len(entries)} reports: {index}", highlight=False)
+        console.print(f"index of {len(entries)} reports: {index}", highlight=False, markup=False)
     if broken:
         errors = Console(stderr=True)
         for _, err in broken:
@@ -315,6 +337,7 @@ def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
 def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
     from instruments.cs2000.emulator import ScriptError, run
 
+    files.regular_file(args.samples, "TOML", field="--samples")
     try:
         run(link=args.link, samples=args.samples, socket_port=args.socket, time_scale=args.time_scale)
     except ScriptError as err:
@@ -329,28 +352,49 @@ def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_card(args: argparse.Namespace, console: Console) -> int:
-    from instruments.drawdown_card import LayoutError, default_layout, load_layout, write_card, write_layout
+    from instruments.drawdown_card import (
+        LayoutError,
+        default_layout,
+        layout_to_toml,
+        load_layout,
+        write_card,
+        write_layout,
+    )
 
-    if args.output.suffix.lower() not in (".png", ".pdf"):
-        raise InputError("expected a .png or .pdf file name", path=args.output, field="-o")
+    files.output_file(args.output, suffixes=(".png", ".pdf"), inputs=[args.layout])
     if args.layout is not None:
+        files.regular_file(args.layout, "TOML", field="--layout")
         try:
             layout = load_layout(args.layout)
         except LayoutError as err:
             raise InputError(str(err), path=args.layout) from None
     else:
         layout = default_layout()
-        layout_path = args.output.with_suffix(".layout.toml")
+        layout_path = files.output_file(args.output.with_suffix(".layout.toml"), field="-o")
+        text = layout_to_toml(layout)
+        if layout_path.exists() and files.read_text(layout_path, "TOML") != text:
+            raise InputError(
+                "exists and differs from the built-in layout (edited?); kmpipe does not replace it: draw the card "
+                f"from it with --layout {layout_path}, or remove it to start from the built-in layout",
+                path=layout_path,
+                field="-o",
+            )
         write_layout(layout, layout_path)
-        console.print(f"wrote the layout {layout_path} (kmpipe ingest-raw reads it)", highlight=False)
+        console.print(f"wrote the layout {layout_path} (kmpipe ingest-raw reads it)", highlight=False, markup=False)
     write_card(layout, args.output)
-    console.print(f"wrote the card {args.output}: print it at 100 % scale", highlight=False)
+    console.print(f"wrote the card {args.output}: print it at 100 % scale", highlight=False, markup=False)
     return EXIT_OK
 
 
 def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.ingest_raw import ingest_raw
 
+    files.output_folder(args.output, create=False)
+    if args.name is not None:
+        files.safe_name(args.name, field="--name")
+    for photo in args.photos:
+        files.regular_file(photo, "RAW photo")
+    files.regular_file(args.layout, "TOML", field="--layout")
     manifest = ingest_raw(
         args.photos,
         args.layout,
@@ -360,7 +404,7 @@ def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
         thickness=args.thickness,
         polarization_factor=args.polarization_factor,
     )
-    console.print(f"wrote {args.output / 'reflectance.csv'} and {manifest}", highlight=False)
+    console.print(f"wrote {args.output / 'reflectance.csv'} and {manifest}", highlight=False, markup=False)
     return EXIT_OK
 
 
@@ -400,14 +444,11 @@ def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
     from renderer.contact_sheet import FrameError, make_sheet, write_sheet
 
     frames = args.frames
-    if args.output.suffix.lower() != ".png":
-        raise InputError("expected a .png file name", path=args.output, field="-o")
-    _refuse_overwriting_inputs(args.output, frames)
+    files.output_file(args.output, suffixes=(".png",), inputs=frames)
     n_cols = args.columns or min(len(frames), 4)
     n_rows = -(-len(frames) // n_cols)
     for path in frames:
-        if not path.is_file():
-            raise InputError("does not exist" if not path.exists() else "is not a file", path=path)
+        files.regular_file(path, "image")
     default_rows, default_columns, default_header = _sheet_labels(frames, n_rows, n_cols)
     columns = args.column_labels or default_columns
     rows = args.row_labels or default_rows
@@ -424,7 +465,9 @@ def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
     write_sheet(sheet, args.output)
     spec = sheet.spec()
     console.print(
-        f"wrote the sheet {args.output} ({n_rows} x {n_cols} frames, {spec.width} x {spec.height} px)", highlight=False
+        f"wrote the sheet {args.output} ({n_rows} x {n_cols} frames, {spec.width} x {spec.height} px)",
+        highlight=False,
+        markup=False,
     )
     return EXIT_OK
 
@@ -442,8 +485,8 @@ def _progress(console: Console):
 def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.render import render_scene
 
-    if args.output.exists() and not args.output.is_dir():
-        raise InputError("exists and is not a folder", path=args.output, field="-o")
+    files.regular_file(args.scene, "TOML")
+    files.output_folder(args.output, create=False)
     with _progress(console) as progress:
         task = progress.add_task("rendering frames", total=None)
 
@@ -460,18 +503,18 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
             on_frame=on_frame,
         )
     frames = [path for path in written if path.suffix == ".exr" and path.parent == args.output]
-    console.print(f"wrote {len(frames)} frames (EXR and PNG) to {args.output}", highlight=False)
+    console.print(f"wrote {len(frames)} frames (EXR and PNG) to {args.output}", highlight=False, markup=False)
     if args.ab_sss:
-        console.print(f"wrote the A/B sheet {args.output / 'ab_sss.png'} (frames without SSS in no_sss/)")
+        console.print(
+            f"wrote the A/B sheet {args.output / 'ab_sss.png'} (frames without SSS in no_sss/)", markup=False
+        )
     return EXIT_OK
 
 
 def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.run import execute, plan_run
 
-    out_dir = args.output or args.recipe.parent / "out"
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("exists and is not a folder", path=out_dir, field="-o")
+    out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
     plan = plan_run(args.recipe, out_dir, only=args.only or (), keep_going=args.keep_going)
     if args.dry_run:
         console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
@@ -483,9 +526,14 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
             progress.update(bar, completed=done, total=total, description=f"tasks (last: {task.id})")
 
         summary = execute(
-            plan, executor=args.executor, workers=args.workers, scheduler=args.scheduler, on_task=on_task
+            plan,
+            executor=args.executor,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            on_task=on_task,
+            wait=args.wait,
         )
-    table = Table(title=f"kmpipe run: {plan.recipe.info.line.name}", title_justify="left")
+    table = Table(title=f"kmpipe run: {escape(plan.recipe.info.line.name)}", title_justify="left")
     for column in ("product", "validation", "frames"):
         table.add_column(column)
     rendered: dict[str, int] = {}
@@ -507,9 +555,9 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
         soft_wrap=True,
     )
     if summary.sheet is not None:
-        console.print(f"contact sheet: {summary.sheet}", highlight=False, soft_wrap=True)
+        console.print(f"contact sheet: {summary.sheet}", highlight=False, markup=False, soft_wrap=True)
     if summary.reports is not None:
-        console.print(f"validation reports: {summary.reports}", highlight=False, soft_wrap=True)
+        console.print(f"validation reports: {summary.reports}", highlight=False, markup=False, soft_wrap=True)
     if summary.failed:
         errors = Console(stderr=True)
         for line in summary.failed:
@@ -606,7 +654,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--port", required=True, help="/dev/ttyACM0, /dev/ttyUSB0, socket://HOST:PORT, replay://LOG ..."
     )
     measure.add_argument("-o", "--output", type=Path, help="session folder (default: SAMPLE/ beside the plan)")
-    measure.add_argument("--record", type=Path, metavar="LOG", help="append every byte exchanged to this session log")
+    measure.add_argument(
+        "--record",
+        type=Path,
+        metavar="LOG",
+        help="append every byte exchanged to this session log (its folder must exist; an existing log must be a "
+        "recording of the same plan)",
+    )
     measure.add_argument("--resume", action="store_true", help="continue an interrupted session in the folder")
     measure.add_argument("--unattended", action="store_true", help="never prompt (the default when not at a terminal)")
     measure.add_argument("--baudrate", type=int, default=115200, help="RS-232 only (USB ignores it); default 115200")
@@ -709,6 +763,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="processes (local: a pool when N > 1; dask: local cluster size); default 1",
     )  # fmt: skip
     run.add_argument("--keep-going", action="store_true", help="render products that failed validation, marked")
+    run.add_argument(
+        "--wait",
+        action="store_true",
+        help="wait for another kmpipe run on the same output folder to finish (default: exit 2 naming it)",
+    )
     run.set_defaults(run=_cmd_run)
     return parser
 
@@ -722,21 +781,34 @@ def main(argv: list[str] | None = None) -> int:
         return args.run(args, console)
     except InputError as err:
         if args.debug:
-            raise
+            traceback.print_exc()
         errors.print(f"[bold red]kmpipe {args.command}: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
+        return EXIT_BAD_INPUT
+    except OSError as err:
+        if err.filename is None or err.errno not in USER_FILE_SYSTEM_ERRORS:  # kmpipe's own doing: a bug
+            return _internal_error(args, errors, err)
+        if args.debug:
+            traceback.print_exc()
+        where = InputError(f"cannot be used ({err.strerror or err})", path=err.filename)
+        errors.print(f"[bold red]kmpipe {args.command}: error:[/] {escape(str(where))}", highlight=False,
+                     soft_wrap=True)  # fmt: skip
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         errors.print("kmpipe: interrupted; files already written are complete, nothing half-written was left.")
         return 130
     except Exception as err:  # a bug, not bad input
-        if args.debug:
-            raise
-        errors.print(
-            f"[bold red]kmpipe {args.command}: internal error:[/] {type(err).__name__}: {escape(str(err))}\n"
-            "This is a bug in kmpipe. Run again with --debug for the traceback and report it.",
-            highlight=False,
-        )
-        return EXIT_INTERNAL
+        return _internal_error(args, errors, err)
+
+
+def _internal_error(args: argparse.Namespace, errors: Console, err: Exception) -> int:
+    if args.debug:
+        traceback.print_exc()
+    errors.print(
+        f"[bold red]kmpipe {args.command}: internal error:[/] {type(err).__name__}: {escape(str(err))}\n"
+        "This is a bug in kmpipe. Run again with --debug for the traceback and report it.",
+        highlight=False,
+    )
+    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

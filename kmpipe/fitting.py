@@ -53,10 +53,24 @@ def _combine(inversions: list[Inversion]) -> tuple[np.ndarray, np.ndarray, np.nd
     )
 
 
-def _km_reflectance(sample: Sample, saunderson) -> tuple[np.ndarray, np.ndarray]:
-    """Readings and backgrounds as KM body reflectance (surface reflection removed when Saunderson is on)."""
+def _explainable(sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Readings and backgrounds (m, n) that the model can explain, and where (n,) some could not.
+
+    A KM film over any backing, with or without Saunderson's surface reflection (R_m(1) = 1), reflects at most as
+    much as a perfect white, and over a backing above 1 its multiple reflections diverge (1 - R0 G reaches 0). A
+    spectral CSV may hold reflectance up to 1.5 (noisy instruments, fluorescent samples): such readings and
+    backings are fitted as 1, the nearest value the model allows, and their wavelengths flagged
+    ``OUT_OF_RANGE``; residuals stay against the readings as measured, and validation fails them
+    (``reflectance_out_of_range``).
+    """
     readings = sample.readings
     backgrounds = np.array([sample.background_of(m) for m in sample.measurements])
+    above = np.any(readings > 1.0, axis=0) | np.any(backgrounds > 1.0, axis=0)
+    return np.minimum(readings, 1.0), np.minimum(backgrounds, 1.0), above
+
+
+def _km_reflectance(readings: np.ndarray, backgrounds: np.ndarray, saunderson) -> tuple[np.ndarray, np.ndarray]:
+    """Readings and backgrounds as KM body reflectance (surface reflection removed when Saunderson is on)."""
     if saunderson is None:
         return readings, backgrounds
     return saunderson_inverse(readings, *saunderson), saunderson_inverse(backgrounds, *saunderson)
@@ -123,7 +137,8 @@ def fit_sample(
     smoothness = settings.smoothness if smoothness is None else smoothness
     noise = settings.noise if noise is None else noise
     tolerance = settings.opaque_tolerance
-    y_km, G_km = _km_reflectance(sample, saunderson)
+    readings, backgrounds, above_one = _explainable(sample)
+    y_km, G_km = _km_reflectance(readings, backgrounds, saunderson)
     thickness = sample.thickness_mm
     fit_info: dict = {"opaque_tolerance": tolerance}
 
@@ -136,7 +151,7 @@ def fit_sample(
         start_fn = _black_white if start == "black-white" else _two_constant
         K0, S0, start_flags = start_fn(sample, y_km, G_km, tolerance)
         result = fit_joint(
-            sample.readings,
+            readings,
             G_km,
             thickness,
             K0,
@@ -162,9 +177,10 @@ def fit_sample(
     else:
         raise InputError(f"unknown method {method!r}; expected one of two-constant, black-white, lsq", field="--method")
 
+    flags = np.where(above_one, flags | np.uint8(Flag.OUT_OF_RANGE), flags)
     predicted = predict_readings(K, S, thickness, G_km, saunderson)
     residuals = predicted - sample.readings
-    K_se, S_se, sigma = standard_errors(K, S, thickness, G_km, sample.readings, saunderson, noise)
+    K_se, S_se, sigma = standard_errors(K, S, thickness, G_km, readings, saunderson, noise)
     fit_info.update(
         noise_sigma=sigma,
         noise_source="given"

@@ -11,6 +11,7 @@ same card become repeats, so their spread is the noise floor that ``kmpipe valid
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,7 @@ from kmpipe.atomic_write import write_text_atomically
 from kmpipe.colorimetry import white_XYZ
 from kmpipe.colour_correction import fit_camera_to_XYZ
 from kmpipe.errors import InputError
+from kmpipe.files import safe_name
 from kmpipe.manifest import parse_thickness_mm
 from kmpipe.spectra import SpectralTable, write_spectra_csv
 
@@ -166,6 +168,11 @@ def _sample_roi(raw, region: Region):
     return sample_pixels(raw.rgb[y : y + h, x : x + w], raw.saturated[y : y + h, x : x + w], name=region.name)
 
 
+def _toml_string(text: str) -> str:
+    """``text`` as a TOML basic string (JSON's escapes are TOML's)."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
 def ingest_raw(
     photos: list[Path],
     layout_path: Path,
@@ -225,12 +232,12 @@ def ingest_raw(
         rgb = camera_reflectance(photo, photo.values[region])
         return rgb if fit is None else fit.apply(rgb) / white
 
-    sample_name = name or Path(out_dir).name
+    sample_name = safe_name(name or Path(out_dir).resolve().name, field="--name")
     columns: dict[str, np.ndarray] = {}
     lines = [
         "# Written by kmpipe ingest-raw: camera-RGB reflectance of the card's regions.",
         "[sample]",
-        f'name = "{sample_name}"',
+        f"name = {_toml_string(sample_name)}",
         "",
     ]
     for region in layout.regions:
@@ -238,9 +245,9 @@ def ingest_raw(
             columns[region.name] = np.mean([reflectance(p, region.name) for p in measured], axis=0)
             lines += [
                 "[[backing]]",
-                f'name = "{region.name}"',
+                f"name = {_toml_string(region.name)}",
                 'file = "reflectance.csv"',
-                f'column = "{region.name}"',
+                f"column = {_toml_string(region.name)}",
                 "",
             ]
     for region in layout.regions:
@@ -264,9 +271,9 @@ def ingest_raw(
             lines += [
                 "[[film]]",
                 'file = "reflectance.csv"',
-                f'column = "{column}"',
-                f'over = "{over}"',
-                f'thickness = "{film_thickness}"',
+                f"column = {_toml_string(column)}",
+                f"over = {_toml_string(str(over))}",
+                f"thickness = {_toml_string(str(film_thickness))}",
                 "",
             ]
     metadata = {

@@ -2,8 +2,13 @@
 
 All functions take KM (body) reflectances; remove surface reflection first with
 :func:`kmpipe.saunderson.saunderson_inverse` if the readings include it. Arrays broadcast, wavelength
-(or channel) last. Nothing returned is NaN or infinite: where the readings cannot determine K and S,
-the element carries a :class:`~kmpipe.flags.Flag` saying what the finite value means instead.
+(or channel) last. Nothing returned is NaN, infinite or negative, for any readings (exact 0 and 1 and
+subnormals included) and any thickness X > 0, and no numpy RuntimeWarning is raised: where the readings
+cannot determine K and S, the element carries a :class:`~kmpipe.flags.Flag` saying what the finite value
+means instead. Readings outside [0, 1] (noise on a reading near 0 or 1) are used as they are where the
+model with K, S >= 0 still explains them, and are otherwise flagged OUT_OF_RANGE and taken as clipped to
+[0, 1]. K or S that would exceed the float64 range (a thickness near 0 for the readings) is set to the
+largest float64 and flagged OUT_OF_RANGE. ``tolerance`` must lie in (0, 1).
 
 Notation: a = 1 + K/S, b = sqrt(a^2 - 1), R_inf = a - b, X thickness (mm), K and S per mm.
 """
@@ -24,9 +29,11 @@ OPAQUE_TOLERANCE = 1e-3
 #: Smallest masstone reflectance used when a reading is 0 or negative (K/S would be infinite).
 _MIN_REFLECTANCE = 1e-9
 #: ... and the K/S that goes with it (K/S of a perfect absorber is infinite).
+_MAX_KS = float((1.0 - _MIN_REFLECTANCE) ** 2 / (2.0 * _MIN_REFLECTANCE))
 #: Elements per block in :func:`black_white` (fits the working set in a 2 MB cache).
 _BLOCK = 16384
-_MAX_KS = float((1.0 - _MIN_REFLECTANCE) ** 2 / (2.0 * _MIN_REFLECTANCE))
+#: K and S that would exceed this (a thickness near 0 for the readings) are set to it and flagged OUT_OF_RANGE.
+_MAX_FLOAT = float(np.finfo(np.float64).max)
 
 
 @dataclass(frozen=True)
@@ -46,12 +53,10 @@ def _check_thickness(X) -> np.ndarray:
     return X
 
 
-def _artanhc(w: np.ndarray) -> np.ndarray:
-    """artanh(w) / w for 0 <= w < 1: series 1 + w^2/3 + w^4/5 + w^6/7 near 0, log form elsewhere."""
-    w2 = w * w
-    series = 1.0 + w2 * (1.0 / 3.0 + w2 * (1.0 / 5.0 + w2 * (1.0 / 7.0)))
-    safe = np.where(w < 1e-3, 0.5, w)
-    return np.where(w < 1e-3, series, np.arctanh(safe) / safe)
+def _check_tolerance(tolerance: float) -> float:
+    if not 0.0 < tolerance < 1.0:
+        raise ValueError(f"tolerance must lie in (0, 1), got {tolerance}")
+    return float(tolerance)
 
 
 def _log1pc(d: np.ndarray) -> np.ndarray:
@@ -64,31 +69,53 @@ def _log1pc(d: np.ndarray) -> np.ndarray:
 def _opaque_lower_bound_sx(ks, R_g_dark, R_g_light, tolerance: float) -> np.ndarray:
     """Smallest S X at which a film of this K/S over the two backgrounds reaches contrast 1 - tolerance.
 
-    Over a background G a film reads R = (1 - G (a - v)) / (a - G + v) with v = b coth(b S X), which
-    falls from +inf (X = 0) to b (opaque). Contrast R_dark / R_light = rho = 1 - tolerance is the
-    quadratic A2 v^2 + A1 v + A0 = 0 with A2 = G_d - rho G_l, A1 = (1 - G_d G_l)(1 - rho) and
-    A0 = A0' - a^2 A2, A0' = a (1 - rho)(1 + G_d G_l) - G_l + rho G_d, whose positive root is v. Then
-    1 - b/v = (v^2 - b^2) / (v (v + b)) with v^2 - b^2 = -(A1 v + A0' - A2) / A2 (no cancellation of
-    the a^2 terms), and S X = artanh(b/v) / b = artanh(w) / (w v), w = b / v. Backgrounds that already
-    meet the contrast (G_d >= rho G_l) give 0.
+    Over a background G a film reads R = (G + p (1 - G a)) / (1 + p (a - G)) with p = 1 / v,
+    v = b coth(b S X), so p rises from 0 (X = 0) to 1/b (opaque). Contrast R_dark / R_light = rho
+    = 1 - tolerance is the quadratic C2 p^2 + C1 p + C0 = 0 with C0 = G_d - rho G_l < 0 (the backgrounds
+    do not yet meet the contrast), C1 = (1 - rho)(1 - G_d G_l) > 0 and C2 = a (1 - rho)(1 + G_d G_l)
+    - G_l + rho G_d - a^2 C0 >= 0, whose positive root is p = 2 |C0| / (C1 + sqrt(C1^2 + 4 C2 |C0|)).
+    With w = b p, 1 - w^2 = 2 (1 - rho) [((a - 1)(1 + G_d G_l) + (1 - G_d)(1 - G_l)) p + 1 - G_d G_l]
+    / (C1 + sqrt(C1^2 + 4 C2 |C0|)), a sum of positive terms (no cancellation near w = 1), and
+    S X = artanh(w) / b = p artanh(w) / w. Backgrounds that already meet the contrast (C0 >= 0) give 0.
+    A tolerance below 1e-15 is taken as 1e-15, which keeps the result finite and still a lower bound.
+    K/S must be finite and >= 0 (at most ``_MAX_KS``); the backgrounds in [0, 1].
     """
-    rho = 1.0 - tolerance
+    rho = 1.0 - max(tolerance, 1e-15)
+    gap = 1.0 - rho
     a = 1.0 + ks
     b = np.sqrt(ks * (ks + 2.0))
-    A2 = R_g_dark - rho * R_g_light
-    A1 = (1.0 - R_g_dark * R_g_light) * (1.0 - rho)
-    A0_reduced = a * (1.0 - rho) * (1.0 + R_g_dark * R_g_light) - R_g_light + rho * R_g_dark
-    hides = A2 < 0.0
-    A2 = np.where(hides, A2, -1.0)
-    disc = A1 * A1 - 4.0 * A2 * (A0_reduced - a * a * A2)
-    v = (A1 + np.sqrt(np.maximum(disc, 0.0))) / (-2.0 * A2)
-    gap = np.maximum(-(A1 * v + A0_reduced - A2) / A2, 0.0) / (v * (v + b))  # 1 - b/v
-    gap = np.maximum(gap, np.finfo(float).tiny)
-    w = 1.0 - gap
+    product = R_g_dark * R_g_light
+    C0 = R_g_dark - rho * R_g_light
+    hides = C0 < 0.0
+    C0 = np.where(hides, -C0, 0.0)  # |C0|
+    C1 = gap * (1.0 - product)
+    C2 = a * gap * (1.0 + product) - R_g_light + rho * R_g_dark + a * a * C0
+    root = C1 + np.sqrt(C1 * C1 + 4.0 * np.maximum(C2, 0.0) * C0)
+    root = np.where(hides, root, 1.0)
+    p = 2.0 * C0 / root
+    slope = ks * (1.0 + product) + (1.0 - R_g_dark) * (1.0 - R_g_light)
+    one_minus_w2 = 2.0 * gap * (slope * p + 1.0 - product) / root
+    one_minus_w2 = np.clip(one_minus_w2, np.finfo(float).tiny, 1.0)
+    w = np.minimum(b * p, 1.0)
+    return p * _artanhc_near_one(w, one_minus_w2)
+
+
+def _artanhc_near_one(w: np.ndarray, one_minus_w2: np.ndarray) -> np.ndarray:
+    """artanh(w) / w for 0 <= w <= 1 given 1 - w^2 > 0 accurately: series below 1e-3, else
+    [log1p(w) - ln(1 - w^2) / 2] / w, finite (at most 355) however close w is to 1."""
     small = w < 1e-3
-    safe_w = np.where(small, 1.0, w)
-    artanh_over_w = np.where(small, 1.0 + w * w / 3.0, 0.5 * np.log((2.0 - gap) / gap) / safe_w)
-    return np.where(hides, artanh_over_w / v, 0.0)
+    safe = np.where(small, 1.0, w)
+    return np.where(small, 1.0 + w * w / 3.0, (np.log1p(safe) - 0.5 * np.log(one_minus_w2)) / safe)
+
+
+def _capped_ratio(numerator: np.ndarray, denominator: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """numerator / denominator for numerator >= 0, denominator > 0, capped at the largest float64.
+
+    Returns the ratio and the mask where it was capped (the true ratio exceeds the float64 range), with no
+    overflow raised.
+    """
+    over = numerator > _MAX_FLOAT * np.minimum(denominator, 1.0)
+    return np.where(over, _MAX_FLOAT, numerator / np.where(over, 1.0, denominator)), over
 
 
 def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
@@ -135,9 +162,11 @@ def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> In
 
     Flags: OPAQUE where |R - R_inf| <= tolerance R_inf (S is then the lower bound at which the film reads
     within tolerance of its masstone); NO_CONTRAST where |R_inf - R_g| <= tolerance R_inf (K = S = 0, K/S
-    exact); OUT_OF_RANGE where R is not between R_g and R_inf, or R_inf is outside (0, 1].
+    exact); OUT_OF_RANGE where R is not between R_g and R_inf, or R_inf is outside [1e-9, 1] (it is then
+    clipped to that range).
     """
     X = _check_thickness(X)
+    tolerance = _check_tolerance(tolerance)
     return _blockwise(_two_constant_regular, _two_constant_careful, (R_inf, R, R_g, X), tolerance)
 
 
@@ -168,15 +197,20 @@ def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks, flags):
         two_b *= X
         S /= two_b
         np.multiply(S, ks, out=K)
+        irregular |= ~(K < np.inf)  # K = S ks: inf or nan where S overflowed (a thickness near 0)
     return irregular
 
 
 def _two_constant_careful(R_inf, R, R_g, X, tolerance):
-    """Every case of :func:`two_constant`, element by element in vector form: limits, flags and bounds."""
+    """Every case of :func:`two_constant`, element by element in vector form: limits, flags and bounds.
+
+    Readings and backgrounds outside [0, 1] are flagged OUT_OF_RANGE and clipped to it.
+    """
     flags = np.zeros(R_inf.shape, dtype=np.uint8)
-    bad_masstone = (R_inf < _MIN_REFLECTANCE) | (R_inf > 1.0)
-    flags[bad_masstone] |= np.uint8(Flag.OUT_OF_RANGE)
-    Ri = np.clip(R_inf, _MIN_REFLECTANCE, 1.0)
+    outside = ~((R >= 0.0) & (R <= 1.0) & (R_g >= 0.0) & (R_g <= 1.0))
+    R, R_g = (np.clip(np.nan_to_num(v), 0.0, 1.0) for v in (R, R_g))
+    bad_masstone = ~((R_inf >= _MIN_REFLECTANCE) & (R_inf <= 1.0))
+    Ri = np.clip(np.nan_to_num(R_inf), _MIN_REFLECTANCE, 1.0)
     ks = ks_from_reflectance_infinite(Ri)
     two_b = (1.0 - Ri) * (1.0 + Ri) / Ri
 
@@ -188,20 +222,23 @@ def _two_constant_careful(R_inf, R, R_g, X, tolerance):
     beyond = ~no_contrast & ~opaque & (remaining < 0.0)  # past the masstone: brighter/darker than possible
     backwards = ~no_contrast & ~opaque & ~beyond & (progress < 0.0)  # moved away from the masstone
     # Readings past the masstone are treated like opaque ones (lower bound); behind the background: S = 0.
+    # A tolerance below 1e-15 is taken as 1e-15 there: a smaller S X, still a lower bound, and finite.
     at_limit = opaque | beyond
-    R_eff = np.where(at_limit, Ri - toward * tolerance * Ri, R)
+    R_eff = np.where(at_limit, Ri - toward * max(tolerance, 1e-15) * Ri, R)
     R_eff = np.where(backwards | no_contrast, R_g, R_eff)
-    numerator = R_eff - R_g
-    denominator = np.where(no_contrast, 1.0, (Ri - R_eff) * (1.0 / Ri - R_g))
-    ratio = np.where(no_contrast, 0.0, numerator / denominator)
-    delta = np.maximum(two_b * ratio, 0.0)
-    SX = np.maximum(ratio, 0.0) * _log1pc(delta)
+    numerator = np.abs(R_eff - R_g)
+    # (R_i - R_eff)(1/R_i - R_g) has the sign of R_eff - R_g and is at least ~tolerance^2 R_i away from 0
+    denominator = np.where(no_contrast, 1.0, np.abs((Ri - R_eff) * (1.0 / Ri - R_g)))
+    ratio, _ = _capped_ratio(numerator, np.maximum(denominator, np.finfo(float).tiny))
+    ratio = np.where(no_contrast, 0.0, np.minimum(ratio, 1e290))  # (at most ~1e39 for tolerance >= 1e-15)
+    SX = ratio * _log1pc(two_b * ratio)
 
+    S, S_over = _capped_ratio(SX, X)
+    K, K_over = _capped_ratio(SX * ks, X)
     flags[opaque] |= np.uint8(Flag.OPAQUE)
     flags[no_contrast] |= np.uint8(Flag.NO_CONTRAST)
-    flags[beyond | backwards] |= np.uint8(Flag.OUT_OF_RANGE)
-    S = SX / X
-    return S * ks, S, ks, flags
+    flags[beyond | backwards | outside | bad_masstone | S_over | K_over] |= np.uint8(Flag.OUT_OF_RANGE)
+    return K, S, ks, flags
 
 
 def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
@@ -225,12 +262,18 @@ def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: f
     are ordinary values. Curtis et al. 1997 (thesis eq. 4.5, which is an arcoth, not an arcosh) is the
     special case G_b = 0, G_w = 1, X = 1.
 
-    Flags: OPAQUE where 1 - R_b / R_w <= tolerance (K/S exact from the system; S the lower bound at which
-    the film reaches that contrast on these backings); OUT_OF_RANGE where no non-negative K, S reproduces
-    the readings (K/S then from the mean of the two readings taken as the masstone, S as for OPAQUE; or
-    K = 0 where only the absorption came out negative).
+    The two backings may come in either order: swapping them (with their readings) negates D, N_u and N_y
+    and leaves the solution unchanged, so a "black" backing brighter than the "white" one is the same film.
+
+    Flags: OPAQUE where |R_w - R_b| <= tolerance max(R_b, R_w) (K/S exact from the system; S the lower
+    bound at which the film reaches that contrast on these backings); OUT_OF_RANGE where no non-negative
+    K, S reproduces the readings (K/S then from the mean of the two readings taken as the masstone, S as
+    for OPAQUE; or K = 0 where only the absorption came out negative), e.g. a film over the dark backing
+    darker than it while it brightens the light one, or equal backings with different readings;
+    AT_BOUND where K/S came out negative by less than ``tolerance`` (K = 0).
     """
     X = _check_thickness(X)
+    tolerance = _check_tolerance(tolerance)
     return _blockwise(
         _black_white_regular,
         _black_white_careful,
@@ -243,11 +286,11 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
     """The common case of :func:`black_white` into K, S, ks (and flags), with few temporaries.
 
     A negative K/S (noise on a nearly non-absorbing film) is taken as K = 0, S X = D / N_y, the nearest
-    physical solution, flagged AT_BOUND; below -``tolerance`` it is flagged OUT_OF_RANGE instead. Returns the mask
-    of elements
-    that are opaque, out of range otherwise, or near D = 0 (a clear absorber, where rounding decides the
-    sign of D): those are redone by :func:`_black_white_careful`. Values computed at those elements may be
-    inf or nan.
+    physical solution, flagged AT_BOUND; below -``tolerance`` it is flagged OUT_OF_RANGE instead. Returns
+    the mask of elements that are opaque, have N_y <= b D (no finite, positive S X; this includes N_y <= 0),
+    lie near D = 0 (a clear absorber, where rounding decides the sign of D), or whose K or S is not finite
+    (a thickness near 0): those are redone by :func:`_black_white_careful`. Values computed at those
+    elements may be inf or nan.
     """
     with np.errstate(all="ignore"):
         s_w = Rw + Gw
@@ -271,8 +314,8 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
         b_num += K
         b_num *= K
         np.sqrt(b_num, out=b_num)  # b |D|
+        irregular |= ~(Ny > b_num)  # y > b >= 0: a finite, positive S X
         w = b_num / Ny
-        irregular |= ~((w >= 0.0) & (w < 1.0))
         irregular |= np.abs(Rw - Rb) <= tolerance * Rw
         factor = np.arctanh(w)
         factor /= w  # artanh(w) / w, nan at w = 0: mended below
@@ -287,42 +330,59 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
         K *= factor
         np.divide(D, Ny, out=S)
         S *= factor
+        np.add(K, S, out=w)
+        irregular |= ~(w < np.inf)
     return irregular
 
 
 def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
-    """Every case of :func:`black_white`, element by element in vector form: limits, flags and bounds."""
-    D = (Rw + Gw) * (Rb - Gb) - (Rb + Gb) * (Rw - Gw)
-    D = np.where(np.abs(D) <= 1e-13 * ((Rw + Gw) * np.abs(Rb - Gb) + (Rb + Gb) * np.abs(Rw - Gw)), 0.0, D)
-    Nu = (1.0 - Rw) * (1.0 - Gw) * (Rb - Gb) - (1.0 - Rb) * (1.0 - Gb) * (Rw - Gw)
-    Ny = (Rw + Gw) * (1.0 - Rb) * (1.0 - Gb) - (Rb + Gb) * (1.0 - Rw) * (1.0 - Gw)
+    """Every case of :func:`black_white`, element by element in vector form: limits, flags and bounds.
+
+    Readings and backings outside [0, 1] are flagged OUT_OF_RANGE and clipped to it. The backings are
+    ordered so that G_d <= G_l (with the readings R_d, R_l over them): swapping the two negates D, N_u and
+    N_y, so u = N_u / D and y = N_y / D are the same. In that order D = 2 (G_l R_d - G_d R_l) (no
+    cancellation of the R_d R_l terms), and a film exists iff D >= 0, N_u >= 0 and N_y > b D, where
+    N_y^2 - b^2 D^2 = 4 (G_l - G_d)(R_l - R_d)(1 - G_d R_l)(1 - G_l R_d).
+    """
+    flags = np.zeros(Rb.shape, dtype=np.uint8)
+    outside = np.zeros(Rb.shape, dtype=bool)
+    for v in (Rb, Rw, Gb, Gw):
+        outside |= ~((v >= 0.0) & (v <= 1.0))
+    Rb, Rw, Gb, Gw = (np.clip(np.nan_to_num(v), 0.0, 1.0) for v in (Rb, Rw, Gb, Gw))
+    ordered = Gb <= Gw
+    Rd, Rl = np.where(ordered, Rb, Rw), np.where(ordered, Rw, Rb)
+    Gd, Gl = np.where(ordered, Gb, Gw), np.where(ordered, Gw, Gb)
+
+    D = 2.0 * (Gl * Rd - Gd * Rl)
+    D = np.where(np.abs(D) <= 1e-13 * (Gl * Rd + Gd * Rl), 0.0, D)
+    Nu = (1.0 - Rl) * (1.0 - Gl) * (Rd - Gd) - (1.0 - Rd) * (1.0 - Gd) * (Rl - Gl)
+    Ny = (Rl + Gl) * (1.0 - Rd) * (1.0 - Gd) - (Rd + Gd) * (1.0 - Rl) * (1.0 - Gl)
 
     # Noise (or rounding) leaves N_u a little below 0 for a nearly non-absorbing film: K/S down to
     # -tolerance is taken as K = 0; only a clearly negative K/S is out of range.
-    scale = (1.0 - Rw) * (1.0 - Gw) * np.abs(Rb - Gb) + (1.0 - Rb) * (1.0 - Gb) * np.abs(Rw - Gw)
+    scale = (1.0 - Rl) * (1.0 - Gl) * np.abs(Rd - Gd) + (1.0 - Rd) * (1.0 - Gd) * np.abs(Rl - Gl)
     negative_k = Nu < -np.maximum(tolerance * D, 1e-12 * scale)
     clamped_k = (Nu < -1e-12 * scale) & ~negative_k
     Nu = np.maximum(Nu, 0.0)
-    b_num = np.sqrt(Nu * np.maximum(Nu + 2.0 * D, 0.0))  # b * |D|
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        contrast_gap = np.where(Rw > 0.0, 1.0 - Rb / np.where(Rw > 0.0, Rw, 1.0), -1.0)
-    opaque = np.abs(contrast_gap) <= tolerance
+    b_num = np.sqrt(Nu * (Nu + 2.0 * np.maximum(D, 0.0)))  # b D
+    opaque = np.abs(Rl - Rd) <= tolerance * np.maximum(Rl, Rd)
     # y > b is what makes S X finite; D >= 0 and N_y > 0 are needed for non-negative S.
     regular = ~opaque & (D >= 0.0) & (Ny > b_num)
 
     safe_Ny = np.where(regular, Ny, 1.0)
-    w = np.where(regular, b_num / safe_Ny, 0.0)
-    factor = _artanhc(w)
-    SX = np.where(regular, D / safe_Ny * factor, 0.0)
-    KX = np.where(regular, Nu / safe_Ny * factor, 0.0)
+    w = np.where(regular, b_num / safe_Ny, 0.0)  # < 1 where regular
+    one_minus_w2 = np.where(regular, 4.0 * (Gl - Gd) * (Rl - Rd) * (1.0 - Gd * Rl) * (1.0 - Gl * Rd), 1.0)
+    one_minus_w2 = np.where(clamped_k | (w < 0.5), 1.0 - w * w, one_minus_w2 / safe_Ny / safe_Ny)
+    factor = _artanhc_near_one(w, np.clip(one_minus_w2, np.finfo(float).tiny, 1.0))
+    SX = np.where(regular, np.minimum(D / safe_Ny, _MAX_FLOAT / factor) * factor, 0.0)
+    KX = np.where(regular, np.minimum(Nu / safe_Ny, _MAX_FLOAT / factor) * factor, 0.0)
 
     # K/S = N_u / D wherever D > 0 (also for opaque films, where it tends to (1 - R)^2 / 2R); a pure
     # absorber (D = 0) gets the largest K/S kmpipe represents; readings the system cannot explain get the
     # K/S of the mean of the two readings taken as the masstone.
     positive_D = D > 0.0
     masstone = np.clip(0.5 * (Rb + Rw), _MIN_REFLECTANCE, 1.0)
-    with np.errstate(over="ignore"):
-        system_ks = Nu / np.where(positive_D, D, 1.0)
+    system_ks, _ = _capped_ratio(Nu, np.where(positive_D, D, 1.0))
     ks = np.where(
         positive_D,
         np.minimum(system_ks, _MAX_KS),
@@ -330,15 +390,16 @@ def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
     )
     bounded = ~regular
     if np.any(bounded):
-        SX_min = _opaque_lower_bound_sx(ks[bounded], Gb[bounded], Gw[bounded], tolerance)
+        SX_min = _opaque_lower_bound_sx(ks[bounded], Gd[bounded], Gl[bounded], tolerance)
         SX[bounded] = SX_min
         KX[bounded] = SX_min * ks[bounded]
 
-    flags = np.zeros(Rb.shape, dtype=np.uint8)
+    K, K_over = _capped_ratio(KX, X)
+    S, S_over = _capped_ratio(SX, X)
     flags[opaque] |= np.uint8(Flag.OPAQUE)
-    flags[~opaque & (~regular | negative_k)] |= np.uint8(Flag.OUT_OF_RANGE)
+    flags[(~opaque & ~regular) | negative_k | outside | K_over | S_over] |= np.uint8(Flag.OUT_OF_RANGE)
     flags[regular & clamped_k] |= np.uint8(Flag.AT_BOUND)
-    return KX / X, SX / X, ks, flags
+    return K, S, ks, flags
 
 
 def curtis(R_over_black, R_over_white, X=1.0, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:

@@ -16,14 +16,22 @@ import numpy as np
 
 #: Below this optical thickness x = beta X, tanh(x)/x is evaluated by its Taylor series.
 _SERIES_LIMIT = 1e-3
+#: Optical thickness x = beta X beyond which tanh(x) = 1 and sech(x) = 0 in float64 (exact, not a bias).
+_THICK = 800.0
+#: (K + S) g above which the forward model switches to its form in 1 / g (no overflow).
+_HUGE = 1e300
 
 
 def _tanhc(x: np.ndarray) -> np.ndarray:
-    """tanh(x) / x for x >= 0, with the series 1 - x^2/3 + 2 x^4/15 - 17 x^6/315 near 0 (error < 1e-19)."""
-    x2 = x * x
+    """tanh(x) / x for x >= 0, with the series 1 - x^2/3 + 2 x^4/15 - 17 x^6/315 near 0 (error < 1e-19).
+
+    The series is evaluated on min(x, limit) only, so x up to +inf raises no overflow.
+    """
+    small = x < _SERIES_LIMIT
+    x2 = np.square(np.where(small, x, 0.0))
     series = 1.0 + x2 * (-1.0 / 3.0 + x2 * (2.0 / 15.0 - x2 * (17.0 / 315.0)))
-    safe = np.where(x < _SERIES_LIMIT, 1.0, x)
-    return np.where(x < _SERIES_LIMIT, series, np.tanh(safe) / safe)
+    safe = np.where(small, 1.0, x)
+    return np.where(small, series, np.tanh(safe) / safe)
 
 
 def _sech(x: np.ndarray) -> np.ndarray:
@@ -38,11 +46,16 @@ def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
     Textbook form (thesis eq. 4.4; Kubelka 1948): R0 = sinh(bSX) / (a sinh(bSX) + b cosh(bSX)),
     T = b / (a sinh(bSX) + b cosh(bSX)). Evaluated as
 
-        beta = sqrt(K (K + 2 S)),  x = beta X,  t = tanh(x) / x,  D = 1 + (K + S) X t,
-        R0 = S X t / D,  T = sech(x) / D,
+        beta = sqrt(K (K + 2 S)),  x = beta X,  g = X tanh(x) / x,  D = 1 + (K + S) g,
+        R0 = S g / D,  T = sech(x) / D,
 
     which is algebraically identical (b S = beta) and exact at K = 0 (R0 = SX / (1 + SX)),
     S = 0 (T = exp(-KX)), X = 0 (R0 = 0, T = 1) and for arbitrarily thick films (R0 -> R_inf, T -> 0).
+    Nothing overflows or underflows for K, S, X in [0, largest float64]: beta / 2 = sqrt(K) sqrt(K/4 + S/2)
+    beyond 1e150 and sqrt(K) sqrt(K + 2 S) / 2 for K below 1e-150;
+    x beyond ``_THICK`` (800, where tanh x = 1 and sech x = 0 in float64) is the same film, with
+    g = 1 / beta; where (K + S) g exceeds 1e300 the equivalent form with c = 1 / g,
+    R0 = S / (c + K + S), T = c sech(x) / (c + K + S), is used (scaled by 1/4). R0 and T lie in [0, 1].
 
     Parameters
     ----------
@@ -51,26 +64,64 @@ def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
     X
         Film thickness, >= 0, in the same length unit (mm).
     """
-    K, S, X = (np.asarray(v, dtype=np.float64) for v in (K, S, X))
-    beta = np.sqrt(K * (K + 2.0 * S))
-    x = beta * X
-    Xt = X * _tanhc(x)
-    D = 1.0 + (K + S) * Xt
-    return S * Xt / D, _sech(x) / D
+    K, S, X = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (K, S, X)))
+    big = (K > 1e150) | (S > 1e150)  # K (K + 2 S) would overflow: beta / 2 = sqrt(K) sqrt(K/4 + S/2)
+    tiny = (K < 1e-150) & ~big  # ... or underflow: beta / 2 = sqrt(K) sqrt(K + 2 S) / 2
+    if np.any(big | tiny):
+        mid = ~big & ~tiny
+        K_mid, S_mid = np.where(mid, K, 0.0), np.where(mid, S, 0.0)
+        K_tiny = np.where(tiny, K, 0.0)
+        beta_half = np.where(
+            big,
+            np.sqrt(K) * np.sqrt(0.25 * K + 0.5 * S),
+            np.where(tiny, 0.5 * (np.sqrt(K_tiny) * np.sqrt(K_tiny + 2.0 * np.where(tiny, S, 0.0))),
+                     0.5 * np.sqrt(K_mid * (K_mid + 2.0 * S_mid))),
+        )
+    else:
+        beta_half = 0.5 * np.sqrt(K * (K + 2.0 * S))
+    with np.errstate(over="ignore"):  # beta X beyond the float range is a thick film: clamped right below
+        x = beta_half * X * 2.0
+    thick = x > _THICK
+    x = np.minimum(x, _THICK)
+    g = np.where(thick, 0.5 / np.where(thick, beta_half, 1.0), X * _tanhc(x))
+    with np.errstate(over="ignore"):  # an overflow here means the form in 1 / g below
+        Kg, Sg = K * g, S * g
+        huge = Kg + Sg > _HUGE
+    Kg, Sg = np.where(huge, 0.0, Kg), np.where(huge, 0.0, Sg)
+    D = 1.0 + Kg + Sg
+    R0 = Sg / D
+    T = np.minimum(_sech(x) / D, 1.0)
+    if np.any(huge):
+        c_quarter = 0.25 / np.where(huge, g, 1.0)  # c / 4 <= (K + S) / 4e300: no overflow
+        denominator = c_quarter + 0.25 * K + 0.25 * S
+        R0 = np.where(huge, 0.25 * S / denominator, R0)
+        T = np.where(huge, _sech(x) * c_quarter / denominator, T)
+    return R0, T
 
 
 def film_over_background(R0, T, R_g) -> np.ndarray:
     """Reflectance of a film (R0, T) lying on a background of reflectance R_g (thesis eq. 3.13).
 
     R = R0 + T^2 R_g / (1 - R0 R_g): the film's own reflectance plus the light transmitted twice
-    after any number of inter-reflections between film and background.
+    after any number of inter-reflections between film and background. A perfect mirror on a perfect
+    mirror (R0 = R_g = 1, so T = 0) gives R0. The result is clamped to [0, 1]: rounding leaves R up to
+    2 ulp above 1 where R_g = 1 and the film barely absorbs.
     """
     R0, T, R_g = (np.asarray(v, dtype=np.float64) for v in (R0, T, R_g))
-    return R0 + T * T * R_g / (1.0 - R0 * R_g)
+    return np.clip(R0 + T * T * R_g / _positive(1.0 - R0 * R_g), 0.0, 1.0)
+
+
+def _positive(denominator: np.ndarray) -> np.ndarray:
+    """A denominator 1 - R R' of eqs. 3.13 and 3.14, with 0 (R = R' = 1, where the numerator is 0) taken as 1."""
+    return np.where(denominator > 0.0, denominator, 1.0)
 
 
 def reflectance_over_background(K, S, X, R_g) -> np.ndarray:
-    """Reflectance of a film (K, S per mm; X mm) over a background of reflectance R_g."""
+    """Reflectance in [0, 1] of a film (K, S per mm; X mm) over a background of reflectance R_g.
+
+    R = R0 + T^2 R_g / (1 - R0 R_g) with R0, T from :func:`film_reflectance_transmittance`, clamped to
+    [0, 1] (see :func:`film_over_background`).
+    """
     R0, T = film_reflectance_transmittance(K, S, X)
     return film_over_background(R0, T, R_g)
 
@@ -93,10 +144,11 @@ def ks_from_reflectance_infinite(R_inf) -> np.ndarray:
     """K/S of an opaque layer from its reflectance, KM convention: K/S = (1 - R_inf)^2 / (2 R_inf).
 
     (The radiative-transfer convention uses 4 R_inf in the denominator; kmpipe never does.)
-    R_inf = 0 gives +inf (a black absorber); callers that need a finite value must clip R_inf first.
+    R_inf = 0 gives +inf (a black absorber), and so does R_inf below about 3e-309 (K/S beyond the float64
+    range); callers that need a finite value must clip R_inf first.
     """
     R_inf = np.asarray(R_inf, dtype=np.float64)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):
         return (1.0 - R_inf) ** 2 / (2.0 * R_inf)
 
 
@@ -104,12 +156,12 @@ def reflectance_infinite_from_ks(ks) -> np.ndarray:
     """R_inf from K/S (KM convention): R_inf = 1 / (1 + q + sqrt(q (q + 2))), q = K/S.
 
     This is a - b written as 1 / (a + b), which has no cancellation for small or large q; for q beyond
-    1e150 (where q (q + 2) would overflow) it uses 1 / (2 q + 2), the same to rounding.
+    1e150 (where q (q + 2) would overflow) it uses 0.5 / (q + 1), the same to rounding.
     """
     q = np.asarray(ks, dtype=np.float64)
     huge = q > 1e150
     safe = np.where(huge, 0.0, q)
-    return np.where(huge, 1.0 / (2.0 * q + 2.0), 1.0 / (1.0 + safe + np.sqrt(safe * (safe + 2.0))))
+    return np.where(huge, 0.5 / (q + 1.0), 1.0 / (1.0 + safe + np.sqrt(safe * (safe + 2.0))))
 
 
 def stack_films(R0, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -128,25 +180,29 @@ def stack_films(R0, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         and its reflectance seen from below. Adding layer i on top of the partial stack (r, t, r'):
         r <- R_i + T_i^2 r / (1 - R_i r),  t <- T_i t / (1 - R_i r),  r' <- r' + t^2 R_i / (1 - R_i r).
         Composing top-down instead would need each partial stack's underside reflectance, which is
-        why the recurrence runs from the bottom.
+        why the recurrence runs from the bottom. All three are clamped to [0, 1].
     """
     R0 = np.asarray(R0, dtype=np.float64)
     T = np.asarray(T, dtype=np.float64)
     R0, T = np.broadcast_arrays(R0, T)
     r_top, t, r_bottom = R0[-1], T[-1], R0[-1]
     for R_i, T_i in zip(R0[-2::-1], T[-2::-1], strict=True):
-        denominator = 1.0 - R_i * r_top
+        denominator = _positive(1.0 - R_i * r_top)
         r_bottom = r_bottom + t * t * R_i / denominator
         t = T_i * t / denominator
         r_top = R_i + T_i * T_i * r_top / denominator
-    return r_top, t, r_bottom
+    return np.clip(r_top, 0.0, 1.0), np.clip(t, 0.0, 1.0), np.clip(r_bottom, 0.0, 1.0)
 
 
 def stack_over_substrate(R0, T, R_g) -> np.ndarray:
-    """Reflectance of a stack of films (index 0 on top, shape (n_layers, ...)) over a substrate R_g."""
+    """Reflectance in [0, 1] of a stack of films (index 0 on top, shape (n_layers, ...)) over a substrate R_g.
+
+    R = R_top + T_total^2 R_g / (1 - R_bottom R_g) (eq. 3.13 with the stack of :func:`stack_films`), clamped
+    to [0, 1]: rounding leaves it up to 2 ulp above 1 where R_g = 1 and the films barely absorb.
+    """
     R_top, T_total, R_bottom = stack_films(R0, T)
     R_g = np.asarray(R_g, dtype=np.float64)
-    return R_top + T_total * T_total * R_g / (1.0 - R_bottom * R_g)
+    return np.clip(R_top + T_total * T_total * R_g / _positive(1.0 - R_bottom * R_g), 0.0, 1.0)
 
 
 def hiding_thickness(K, S, R_black, R_white, contrast_ratio: float = 0.98) -> np.ndarray:
@@ -178,9 +234,9 @@ def hiding_thickness(K, S, R_black, R_white, contrast_ratio: float = 0.98) -> np
     S = np.where(never, 1.0, S)  # a stand-in, so that no 0/0 arises; the answer there is inf
     already = contrast(np.zeros_like(K)) >= contrast_ratio
     # Bracket in optical thickness: with s = K + S the contrast is 1 - O(e^-2x); 1e-12 .. 1e12 / s covers it.
-    scale = np.where(never, 1.0, K + S)
-    lo = np.full_like(K, np.log(1e-12)) - np.log(scale)
-    hi = np.full_like(K, np.log(1e12)) - np.log(scale)
+    half_scale = np.where(never, 0.5, 0.5 * K + 0.5 * S)  # (K + S) / 2, which cannot overflow
+    lo = np.full_like(K, np.log(0.5e-12)) - np.log(half_scale)
+    hi = np.full_like(K, np.log(0.5e12)) - np.log(half_scale)
     for _ in range(64):
         mid = 0.5 * (lo + hi)
         below = contrast(np.exp(mid)) < contrast_ratio

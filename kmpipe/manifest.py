@@ -9,16 +9,24 @@ from __future__ import annotations
 import math
 import re
 import tomllib
-from decimal import Decimal
+from decimal import Decimal, DecimalException
 from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from kmpipe import files
 from kmpipe.errors import InputError
 from kmpipe.spectra import uniform_grid
 
 METHODS = ("two-constant", "black-white", "lsq")
+#: Thickest film a TOML format may give (mm): far beyond any drawdown, small enough that (K X)^2 stays finite for
+#: every K a material may hold.
+MAX_THICKNESS_MM = 100.0
+#: Largest ``[fit] smoothness``: the penalty then outweighs any misfit by 12 orders of magnitude.
+MAX_SMOOTHNESS = 1e6
+#: Longest wavelength (nm) a ``[fit] grid`` may reach.
+MAX_GRID_NM = 100_000.0
 
 _LENGTH_UNITS_MM = {
     "nm": Decimal("1e-6"),
@@ -31,7 +39,8 @@ _LENGTH = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zÂµÎ
 
 
 def parse_thickness_mm(text: str, *, allow_zero: bool = False) -> float:
-    """'30 um', '0.03 mm', '30000 nm' -> thickness in mm (> 0, or >= 0 with ``allow_zero``).
+    """'30 um', '0.03 mm', '30000 nm' -> thickness in mm (> 0, or >= 0 with ``allow_zero``; at most
+    :data:`MAX_THICKNESS_MM`).
 
     Raises ValueError with what was expected.
     """
@@ -41,9 +50,14 @@ def parse_thickness_mm(text: str, *, allow_zero: bool = False) -> float:
             f"expected a thickness with a unit, like '30 um' or '0.03 mm' (units: nm, um, mm), got {text!r}"
         )
     # Decimal arithmetic, so that '25000 nm', '25 um' and '0.025 mm' give the same float (repeats group by it).
-    value = float(Decimal(match.group(1)) * _LENGTH_UNITS_MM[match.group(2)])
-    if not ((value >= 0.0 if allow_zero else value > 0.0) and math.isfinite(value)):
-        raise ValueError(f"thickness must be {'>= 0' if allow_zero else '> 0'}, got {text!r}")
+    try:
+        value = float(Decimal(match.group(1)) * _LENGTH_UNITS_MM[match.group(2)])
+    except DecimalException:  # an exponent beyond Decimal's range
+        value = math.inf
+    if not ((value >= 0.0 if allow_zero else value > 0.0) and value <= MAX_THICKNESS_MM):
+        raise ValueError(
+            f"thickness must be {'>= 0' if allow_zero else '> 0'} and at most {MAX_THICKNESS_MM:g} mm, got {text!r}"
+        )
     return value
 
 
@@ -71,8 +85,8 @@ def parse_grid(text: str) -> tuple[float, float, float]:
         start, stop, step = (float(p) for p in parts)
     except ValueError:
         raise ValueError(f"expected START:STOP:STEP in nm, like '400:700:10', got {text!r}") from None
-    if not (step > 0.0 and start < stop):
-        raise ValueError(f"grid needs START < STOP and STEP > 0, got {text!r}")
+    if not (0.0 < start < stop <= MAX_GRID_NM and step > 0.0):
+        raise ValueError(f"grid needs 0 < START < STOP <= {MAX_GRID_NM:g} nm and STEP > 0, got {text!r}")
     try:
         uniform_grid(*parts)
     except InputError as err:
@@ -81,11 +95,23 @@ def parse_grid(text: str) -> tuple[float, float, float]:
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def _file_name(value: str) -> str:
+    """A name that becomes a file name (:func:`kmpipe.files.name_problem`)."""
+    problem = files.name_problem(value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
+
+
+#: A name that becomes a file name (a sample's, a scene's): no '/', '\\', control characters, not '.' or '..'.
+FileName = Annotated[str, AfterValidator(_file_name)]
 
 
 class SampleInfo(_Strict):
-    name: str = Field(min_length=1)
+    name: FileName
     product: str = ""
     kind: str = ""
 
@@ -130,7 +156,7 @@ class FitSettings(_Strict):
     grid: str | None = None
     saunderson: tuple[float, float] | None = None
     noise: float | None = Field(default=None, gt=0.0, lt=0.5)
-    smoothness: float = Field(default=0.0, ge=0.0)
+    smoothness: float = Field(default=0.0, ge=0.0, le=MAX_SMOOTHNESS)
     opaque_tolerance: float = Field(default=1e-3, gt=0.0, lt=0.5)
 
     @field_validator("grid")
@@ -242,24 +268,26 @@ def field_line(path: Path, field: str) -> int | None:
         if index:
             loc.append(int(index.rstrip("]")) - 1)
     try:
-        return toml_line(Path(path).read_text(encoding="utf-8"), tuple(loc))
-    except (OSError, UnicodeDecodeError, ValueError):
+        return toml_line(files.read_text(path, "TOML"), tuple(loc))
+    except (InputError, ValueError):
         return None
 
 
 def read_toml(path: Path, what: str) -> tuple[str, dict]:
-    """The text and the parsed TOML of a file people write; InputError naming the file (and line) otherwise."""
+    """The text and the parsed TOML of a file people write (a regular UTF-8 file of at most
+    ``files.LIMITS["TOML"]`` bytes); InputError naming the file (and line) otherwise. ``what`` names the file's
+    role in the messages ("sample manifest")."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"the {what} does not exist", path=path) from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"cannot read the {what} as UTF-8 text ({err})", path=path) from None
+        text = files.read_text(path, "TOML")
+    except InputError as err:
+        raise InputError(f"the {what}: {err.message}", path=path) from None
     try:
         return text, tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         match = re.search(r"line (\d+)", str(err))
         raise InputError(f"not valid TOML: {err}", path=path, line=int(match.group(1)) if match else None) from None
+    except RecursionError:
+        raise InputError(f"not a {what}: its arrays or tables are nested too deeply", path=path) from None
 
 
 def first_validation_error(err: ValidationError) -> dict:

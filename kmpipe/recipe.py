@@ -16,6 +16,7 @@ output goes under the run's output folder, and an output path that would leave i
 from __future__ import annotations
 
 import copy
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
+from kmpipe.files import regular_file
 from kmpipe.manifest import input_error, located_in, read_toml, toml_line
 from kmpipe.scene import MAX_LAYERS, RenderSettings, SceneFile
 from kmpipe.validation import Thresholds
@@ -35,7 +37,7 @@ SOURCES = ("measure", "replay", "fit", "material")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class LineInfo(RenderSettings):
@@ -58,7 +60,7 @@ class ReplaySource(_Strict):
 class MeasureSource(_Strict):
     plan: str = Field(min_length=1)
     port: str = Field(min_length=1)
-    baudrate: int = Field(default=115200, gt=0)
+    baudrate: int = Field(default=115200, gt=0, le=4_000_000)
 
 
 class ProductInfo(_Strict):
@@ -221,12 +223,13 @@ class Recipe:
 
 
 def inside(out_dir: Path, relative: str, where: dict) -> Path:
-    """``out_dir / relative``, refused (InputError at ``where``) if it would lie outside ``out_dir``."""
-    target = (out_dir / relative).resolve()
-    root = out_dir.resolve()
-    if Path(relative).is_absolute() or not (target == root or target.is_relative_to(root)):
+    """``out_dir / relative`` with its ``.`` and ``..`` taken out, refused (InputError at ``where``) if ``relative``
+    is absolute or climbs out of ``out_dir``. This is the recipe's text; symlinks in the output folder are checked
+    where the run writes (:mod:`kmpipe.run`)."""
+    normal = os.path.normpath(relative)
+    if Path(relative).is_absolute() or normal == os.pardir or normal.startswith(os.pardir + os.sep):
         raise InputError(f"{relative!r} would write outside the output folder; give a path inside it", **where)
-    return target
+    return out_dir / normal
 
 
 def load_recipe(path: str | Path) -> Recipe:
@@ -251,6 +254,9 @@ def load_recipe(path: str | Path) -> Recipe:
             _existing(recipe, product.measure.plan, ("product", i, "measure", "plan"))
         for j, layer in enumerate(product.layer):
             owner = layer.get("material")
+            if not isinstance(owner, str):
+                raise InputError(f"expected 'self' or the name of a product of the recipe (text), got {owner!r}",
+                                 **recipe.where(("product", i, "layer", j, "material")))  # fmt: skip
             if owner == SELF and product.source is None:
                 raise InputError("names 'self', but the product has no material of its own", **recipe.where(
                     ("product", i, "layer", j, "material")))  # fmt: skip
@@ -283,9 +289,10 @@ def _thresholds(info: ValidationInfo, path: Path, text: str) -> Thresholds:
 
 def _existing(recipe: Recipe, relative: str, loc: tuple) -> Path:
     target = recipe.base / relative
-    if not target.is_file():
-        raise InputError(f"names {target}, which {'is not a file' if target.exists() else 'does not exist'}",
-                         **recipe.where(loc))  # fmt: skip
+    try:
+        regular_file(target, "input", limit=1 << 62)  # the reader applies its format's limit
+    except InputError as err:
+        raise InputError(f"names {target}, which {err.message.split(';')[0]}", **recipe.where(loc)) from None
     return target
 
 
@@ -300,7 +307,8 @@ def _check_template(recipe: Recipe) -> None:
 def _check_product_scene(recipe: Recipe, index: int) -> None:
     """Validate a product's composed scene as a scene file (materials stand in by name; files exist later)."""
     product = recipe.info.product[index]
-    stand_ins = {p.name: Path(f"{slug(p.name)}.json") for p in recipe.info.product}
+    owners = {product.name, *(layer["material"] for layer in product.layer)} - {SELF}
+    stand_ins = {name: Path(f"{slug(name)}.json") for name in owners}
     data = recipe.scene_data(product, stand_ins)
     try:
         SceneFile.model_validate(data)

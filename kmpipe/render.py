@@ -15,6 +15,8 @@ a ground under the product.
 from __future__ import annotations
 
 import math
+import os
+import secrets
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,7 +71,10 @@ def can_shadow_itself(mesh: trimesh.Trimesh) -> bool:
 
 
 def plan_scene(scene: Scene) -> ScenePlan:
-    """The scene's render plan: mode and tables, then shadows and the other per-frame work."""
+    """The scene's render plan: mode and tables, then shadows and the other per-frame work.
+
+    A point light inside the product's bounding sphere is refused here (InputError naming its position).
+    """
     from renderer.layers import MAX_CHANNELS
 
     materials = {m.name: m for m in scene.materials}
@@ -83,14 +88,7 @@ def plan_scene(scene: Scene) -> ScenePlan:
     tables = plan_render(
         materials, stacks, ranges, settings.illuminant, settings.accuracy, settings.mode, max_bands=MAX_CHANNELS
     )
-    kind, n_bands = parse_mode(tables.mode)
-    if kind == "bands" and n_bands > MAX_CHANNELS:
-        raise InputError(
-            f"mode {tables.mode} has more bands than the layer pass composes ({MAX_CHANNELS}): use bands:N with "
-            f"N <= {MAX_CHANNELS}, or exact",
-            path=scene.path,
-            field="scene.mode",
-        )
+    kind, _ = parse_mode(tables.mode)
     notes = []
     if kind == "exact":
         notes.append(
@@ -119,7 +117,7 @@ def plan_scene(scene: Scene) -> ScenePlan:
             f"shadow maps: {sum(wanted)} of {len(lights)} lights cast shadows of {casters}"
             f"{' onto the ground' if scene.info.ground is not None else ''}; {size} x {size} texels, 3 x 3 PCF"
         )
-    _check_shadowing_point_lights(scene, wanted)
+    _check_point_lights(scene, wanted)
     if scene.info.ground is None:
         notes.append("ground: none")
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
@@ -128,12 +126,25 @@ def plan_scene(scene: Scene) -> ScenePlan:
     return ScenePlan(tables, size, tuple(wanted), tuple(notes))
 
 
-def _check_shadowing_point_lights(scene: Scene, shadows: list[bool]) -> None:
-    """A point light's shadow map looks at the scene from outside it: refuse one inside the scene's reach."""
+def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
+    """Refuse a point light inside the product's bounding sphere (on or in the product, at some turn of the
+    turntable, where its inverse-square falloff has no finite value), and a shadowing one inside the scene's reach
+    (its shadow map looks at the scene from outside it)."""
     centre, radius, _ = _bounds(scene)
     reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
     for index, (light, casts) in enumerate(zip(scene.info.light, shadows, strict=True)):
-        if casts and light.kind == "point" and np.linalg.norm(np.subtract(light.position, centre)) <= 1.05 * reach:
+        if light.kind != "point":
+            continue
+        distance = float(np.linalg.norm(np.subtract(light.position, centre)))
+        if distance <= radius:
+            raise InputError(
+                f"a point light must stand outside the product: more than {radius:.3g} mm (the radius of its "
+                f"bounding sphere) from its centre {tuple(round(float(c), 1) for c in centre)}, got {distance:.3g} "
+                "mm: move it",
+                path=scene.path,
+                field=f"light[{index + 1}].position",
+            )
+        if casts and distance <= 1.05 * reach:
             raise InputError(
                 f"a point light that casts shadows must stand outside the scene (more than {1.05 * reach:.0f} mm "
                 f"from its centre {tuple(round(float(c), 1) for c in centre)}, the product"
@@ -382,10 +393,8 @@ def render_scene(
     renders only those frames of the turntable (indices); ``header`` adds attributes to every frame's EXR header.
     Returns the files written, EXR and PNG of each frame in order (then the A/B frames and sheet).
     """
-    from renderer.image_io import write_exr, write_png
     from renderer.layers import render_layers
     from renderer.skin import render_skin
-    from renderer.tone_map import tone_map
 
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -461,14 +470,41 @@ def render_scene(
             }
             if folder != out_dir:
                 frame_header["subsurface_scattering"] = "off (A/B comparison)"
-            write_exr(exr, image, frame_header, half=False)
-            write_png(png, tone_map(image, info.output.tone_map, info.output.exposure_ev))
+            _write_frame(exr, png, image, frame_header, info.output)
             written += [exr, png]
         if on_frame is not None:
             on_frame(done + 1, len(chosen))
     if ab_scattering:
         written.append(_ab_sheet(out_dir, scene, len(angles)))
     return written
+
+
+def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) -> None:
+    """Write one frame as a pair: the linear EXR (32-bit float, with ``header``) and the PNG tone mapped as
+    ``output`` (the scene's [output]) says.
+
+    Both go to temporary names first, then the old EXR is removed and the PNG and the EXR are renamed in place, in
+    that order: an exit at any moment leaves no EXR (what caches and readers look for) without its PNG. A frame with
+    NaN or infinite pixels is a renderer bug: RuntimeError, and nothing is written for it.
+    """
+    from renderer.image_io import write_exr, write_png
+    from renderer.tone_map import tone_map
+
+    bad = int(np.count_nonzero(~np.isfinite(image)))
+    if bad:
+        raise RuntimeError(f"the renderer gave {bad} NaN or infinite values for {exr}; nothing was written for it")
+    token = secrets.token_hex(8)
+    temporary_exr = exr.with_name(f".{exr.stem}.{token}.exr")
+    temporary_png = png.with_name(f".{png.stem}.{token}.png")
+    try:
+        write_exr(temporary_exr, image, header, half=False)
+        write_png(temporary_png, tone_map(image, output.tone_map, output.exposure_ev))
+        exr.unlink(missing_ok=True)
+        os.replace(temporary_png, png)
+        os.replace(temporary_exr, exr)
+    finally:
+        temporary_exr.unlink(missing_ok=True)
+        temporary_png.unlink(missing_ok=True)
 
 
 def _ab_sheet(out_dir: Path, scene: Scene, frames: int) -> Path:

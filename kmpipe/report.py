@@ -377,13 +377,18 @@ def render_sample_html(report: SampleReport) -> str:
 
 
 def write_sample_report(report: SampleReport, out_dir: Path) -> Path:
-    """Write ``validation.json`` and ``report.html`` into ``out_dir`` (created); return the HTML path."""
+    """Write ``report.html`` and then ``validation.json`` into ``out_dir`` (created); return the HTML path.
+
+    Both documents are made before either is written, and the JSON (what batch readers look for) is written last,
+    so an exit at any moment never leaves a validation.json without its report.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     document = json.dumps(report_to_dict(report, html="report.html"), indent=1, allow_nan=False)
-    write_text_atomically(out_dir / "validation.json", document + "\n")
+    page = render_sample_html(report)
     path = out_dir / "report.html"
-    write_text_atomically(path, render_sample_html(report))
+    write_text_atomically(path, page)
+    write_text_atomically(out_dir / "validation.json", document + "\n")
     return path
 
 

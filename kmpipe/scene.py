@@ -28,6 +28,7 @@ import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from kmpipe import files
 from kmpipe.errors import InputError
 from kmpipe.manifest import (
     ThicknessOrZero,
@@ -46,11 +47,22 @@ MAX_LIGHTS = 4
 #: Built-in meshes by name.
 BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact", "head", "cylinder")
 COLORCHECKER = "ColorChecker N Ohta"
-_PIXELS = Annotated[int, Field(ge=1, le=8192)]
+#: Largest image side (pixels). A frame costs about 200 bytes a pixel on llvmpipe (several RGBA32F targets of 16
+#: bytes, the depth buffer, the read-back and the float64 copies of tone mapping and writing): ~3.4 GB at
+#: 4096 x 4096, four times that at 8192 x 8192.
+MAX_RESOLUTION = 4096
+_PIXELS = Annotated[int, Field(ge=1, le=MAX_RESOLUTION)]
+#: Largest light radiance (linear RGB per channel, 1 = a white Lambert surface renders as white): far above any
+#: exposure the output's +-20 EV can bring back, far below float32's range after the inverse-square falloff.
+MAX_RADIANCE = 1e6
+#: Largest distance or coordinate (mm) of a light or the camera: 100 m.
+MAX_DISTANCE_MM = 1e5
+#: Shortest direction vector of a directional light (its length is otherwise free).
+MIN_DIRECTION = 1e-6
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RenderSettings(_Strict):
@@ -70,8 +82,16 @@ class RenderSettings(_Strict):
     @field_validator("mode")
     @classmethod
     def _known_mode(cls, value: str | None) -> str | None:
+        """'rgb', 'exact' or 'bands:N' with N at most the layer pass's channels (renderer.layers.MAX_CHANNELS)."""
+        from renderer.layers import MAX_CHANNELS
+
         if value is not None:
-            parse_mode(value)
+            kind, n_bands = parse_mode(value)
+            if kind == "bands" and n_bands > MAX_CHANNELS:
+                raise ValueError(
+                    f"mode {value} has more bands than the layer pass composes ({MAX_CHANNELS}): use bands:N with "
+                    f"N <= {MAX_CHANNELS}, or exact"
+                )
         return value
 
 
@@ -124,8 +144,8 @@ class SpecularInfo(_Strict):
 
 class ScatteringInfo(_Strict):
     alpha: float = Field(default=1.0, gt=0.0, le=1000.0)
-    beta: float = Field(default=800.0, ge=0.0)
-    gradient_clamp: float = Field(default=0.001, ge=0.0)
+    beta: float = Field(default=800.0, ge=0.0, le=1e6)
+    gradient_clamp: float = Field(default=0.001, ge=0.0, le=1.0)  # metres of depth per pixel
 
 
 class SkinInfo(SubstrateInfo):
@@ -136,9 +156,9 @@ class SkinInfo(SubstrateInfo):
     scattering: ScatteringInfo | bool = True
 
 
-_Finite = Annotated[float, Field(allow_inf_nan=False)]
-_Vector = tuple[_Finite, _Finite, _Finite]
-_NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+_Coordinate = Annotated[float, Field(ge=-MAX_DISTANCE_MM, le=MAX_DISTANCE_MM)]
+_Vector = tuple[_Coordinate, _Coordinate, _Coordinate]
+_Radiance = Annotated[float, Field(ge=0.0, le=MAX_RADIANCE)]
 
 
 class LayerInfo(_Strict):
@@ -158,8 +178,8 @@ class LightInfo(_Strict):
     kind: Literal["directional", "point"] = "directional"
     direction: _Vector | None = None
     position: _Vector | None = None
-    radiance: tuple[_NonNegative, _NonNegative, _NonNegative] = (1.0, 1.0, 1.0)
-    reference_distance_mm: float | None = Field(default=None, gt=0.0)
+    radiance: tuple[_Radiance, _Radiance, _Radiance] = (1.0, 1.0, 1.0)
+    reference_distance_mm: float | None = Field(default=None, gt=0.0, le=MAX_DISTANCE_MM)
     shadows: bool = True
 
     @model_validator(mode="after")
@@ -168,8 +188,11 @@ class LightInfo(_Strict):
             if self.position is not None or self.reference_distance_mm is not None:
                 raise ValueError("a directional light has a direction, not a position or reference_distance_mm")
             vector = self.direction if self.direction is not None else (0.0, 0.0, 1.0)
-            if not any(v != 0.0 for v in vector):
-                raise ValueError("the direction towards the light must be a non-zero vector")
+            if not max(abs(v) for v in vector) >= MIN_DIRECTION:
+                raise ValueError(
+                    f"the direction towards the light must be a non-zero vector (a component of at least "
+                    f"{MIN_DIRECTION:g} in size), got {vector}"
+                )
         elif self.position is None or self.direction is not None:
             raise ValueError("a point light has a position (mm) and no direction")
         return self
@@ -185,9 +208,9 @@ class OutputInfo(_Strict):
 
 
 class CameraInfo(_Strict):
-    azimuth_deg: float = 0.0
+    azimuth_deg: float = Field(default=0.0, ge=-360.0, le=360.0)
     elevation_deg: float = Field(default=0.0, gt=-90.0, lt=90.0)
-    distance_mm: float | None = Field(default=None, gt=0.0)
+    distance_mm: float | None = Field(default=None, gt=0.0, le=MAX_DISTANCE_MM)
     projection: Literal["perspective", "orthographic"] = "perspective"
     fov_deg: float = Field(default=30.0, gt=0.0, lt=180.0)
 
@@ -308,7 +331,8 @@ def _upright() -> np.ndarray:
     return model
 
 
-def _mesh(name: str, base: Path) -> tuple[trimesh.Trimesh, np.ndarray]:
+def _mesh(name: str, base: Path, where: dict) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A built-in mesh by name, or the mesh file ``base / name`` (a regular file within the mesh size limit)."""
     from renderer import meshes, products
 
     if name == "card":
@@ -323,7 +347,10 @@ def _mesh(name: str, base: Path) -> tuple[trimesh.Trimesh, np.ndarray]:
         return meshes.head(), np.eye(4)
     if name == "cylinder":
         return meshes.cylinder(40.0, 120.0), np.eye(4)
-    return products.load_mesh(base / name), np.eye(4)
+    path = base / name
+    if path.exists():  # a missing file is load_mesh's ValueError, which lists the built-in meshes
+        files.regular_file(path, "mesh", **where)
+    return products.load_mesh(path), np.eye(4)
 
 
 #: Where a field of a scene is, for error messages: loc (as pydantic gives it) -> InputError's path, line, field.
@@ -367,18 +394,19 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
                 **at,
             )
         materials.append(material)
-        hashes.append(hashlib.sha256(material_path.read_bytes()).hexdigest())
+        hashes.append(hashlib.sha256(files.read_bytes(material_path, "material", field=at["field"])).hexdigest())
         if layer.thickness is not None:
             thicknesses.append(parse_thickness_mm(layer.thickness, allow_zero=True))
         else:
             thicknesses.append(_thickness_map(layer.thickness_map, base, where(("layer", i, "thickness_map"))))
 
     try:
-        mesh, model = _mesh(info.scene.mesh, base)
+        mesh, model = _mesh(info.scene.mesh, base, {"field": where(("scene", "mesh"))["field"]})
     except ValueError as err:
         raise InputError(
             f"{err} (expected one of {', '.join(BUILTIN_MESHES)} or a mesh file)", **where(("scene", "mesh"))
         ) from None
+    _check_mode(info.scene, len(materials[0].wavelengths), where(("scene", "mode")))
     key = "skin" if info.skin is not None else "substrate"
     uv = getattr(mesh.visual, "uv", None)
     if uv is None or len(uv) != len(mesh.vertices):
@@ -399,6 +427,17 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
     return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, albedo, mesh, model)
 
 
+def _check_mode(settings: RenderSettings, n_wavelengths: int, where: dict) -> None:
+    """A forced ``bands:N`` needs at least N wavelengths in the materials' grid."""
+    if settings.mode is not None:
+        kind, n_bands = parse_mode(settings.mode)
+        if kind == "bands" and n_bands > n_wavelengths:
+            raise InputError(
+                f"mode {settings.mode} asks for more bands than the materials have wavelengths ({n_wavelengths})",
+                **where,
+            )
+
+
 def _albedo(info: SubstrateInfo, base: Path, where: dict) -> np.ndarray:
     """The albedo texture as linear RGB (rows, columns, 3): sRGB-decoded unless linear (EXR and HDR by default)."""
     from renderer.image_io import read_pixels
@@ -406,9 +445,10 @@ def _albedo(info: SubstrateInfo, base: Path, where: dict) -> np.ndarray:
     path = base / info.albedo_texture
     if not path.is_file():
         raise InputError(f"names the albedo texture {path}, which does not exist", **where)
+    files.regular_file(path, "image", field=where["field"])
     try:
         image, _ = read_pixels(path)
-    except OSError as err:
+    except (OSError, ValueError) as err:
         raise InputError(f"cannot read the albedo texture: {err}", **where) from None
     if image.shape[2] < 3 or not np.all(np.isfinite(image[..., :3])) or image[..., :3].min() < 0.0:
         raise InputError(f"{path}: an albedo texture needs finite, non-negative R, G and B channels", **where)
@@ -428,6 +468,7 @@ def _thickness_map(info: ThicknessMapInfo, base: Path, where: dict) -> np.ndarra
     image_path = base / info.file
     if not image_path.is_file():
         raise InputError(f"names the thickness map {image_path}, which does not exist", **where)
+    files.regular_file(image_path, "image", field=where["field"])
     try:
         value = read_channel(image_path, info.channel)
     except (OSError, ValueError) as err:

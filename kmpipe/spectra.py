@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from colour.algebra import CubicSplineInterpolator, PchipInterpolator, SpragueInterpolator
 
+from kmpipe import files
 from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
 
@@ -271,16 +272,9 @@ def _parse_number(cell: str, what: str, path: Path, line: int, column: str) -> f
 
 
 def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError("file not found; expected a spectral CSV file", path=path) from None
-    except UnicodeDecodeError as err:
-        raise InputError(
-            f"the file is not UTF-8 text ({err.reason}); expected a spectral CSV file", path=path
-        ) from None
-    except OSError as err:
-        raise InputError(f"the file cannot be read ({err.strerror}); expected a spectral CSV file", path=path) from None
+    """The text of a spectral CSV: a regular UTF-8 file (a byte order mark is dropped) of at most
+    ``files.LIMITS["spectral CSV"]`` bytes (:func:`kmpipe.files.read_text`)."""
+    return files.read_text(path, "spectral CSV", encoding="utf-8-sig")
 
 
 def _split_csv(line: str, path: Path, line_no: int) -> list[str]:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from kmpipe.errors import InputError
 from kmpipe.flags import Flag
 from kmpipe.joint_fit import predict_readings
 from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
+from kmpipe.manifest import read_toml
 from kmpipe.material import Material, ResidualFigures, read_material
 from kmpipe.sample import Sample, file_sha256, load_sample
 from kmpipe.saunderson import saunderson_forward, saunderson_inverse
@@ -79,13 +79,9 @@ class Thresholds:
 
     @classmethod
     def from_toml(cls, path: Path) -> Thresholds:
-        """Read ``[thresholds]`` from a TOML file; InputError naming the field on a bad value."""
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise InputError("the validation config file does not exist", path=path) from None
-        except tomllib.TOMLDecodeError as err:
-            raise InputError(f"not valid TOML: {err}", path=path) from None
+        """Read ``[thresholds]`` from a TOML file (read as :func:`kmpipe.manifest.read_toml` reads: a regular file
+        within the TOML size limit); InputError naming the field on a bad value."""
+        _, data = read_toml(Path(path), "validation config")
         extra = sorted(set(data) - {"thresholds"})
         if extra:
             raise InputError("unknown table or key; the file holds one [thresholds] table", path=path, field=extra[0])

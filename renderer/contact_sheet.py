@@ -130,7 +130,7 @@ def read_frame(path: str | Path) -> np.ndarray:
             colour = srgb_encode(np.nan_to_num(linear, nan=0.0, posinf=1.0, neginf=0.0))
         else:
             colour = read_png(path).astype(np.float64) / 255.0
-    except OSError as err:
+    except (OSError, ValueError) as err:  # ValueError: an image over the readers' size limits
         raise FrameError(path, f"cannot be read as an image ({err})") from None
     if colour.shape[2] < 3:
         colour = np.repeat(colour[..., :1], 3, axis=2)

@@ -16,6 +16,10 @@ import OpenImageIO as oiio
 AttributeValue = str | float | int
 
 _CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+#: Largest image side (pixels) read: 8192 x 8192 x 4 channels is 1 GiB as float32, 2 GiB as float64.
+MAX_IMAGE_SIDE = 8192
+#: Most channels of an image read.
+MAX_CHANNELS = 16
 #: The process's file creation mask (read once: os.umask can only be read by setting it).
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
@@ -78,7 +82,11 @@ def write_exr(
 
 
 def _read(path: str | Path, pixel_type, pixels: bool = True) -> tuple[np.ndarray | None, oiio.ImageSpec]:
-    """An image file's pixels (height, width, channels) as OIIO's ``pixel_type``, top row first, and its spec."""
+    """An image file's pixels (height, width, channels) as OIIO's ``pixel_type``, top row first, and its spec.
+
+    The header is read first: an image larger than :data:`MAX_IMAGE_SIDE` on a side or with more than
+    :data:`MAX_CHANNELS` channels is refused (ValueError) before any pixel is read.
+    """
     source = oiio.ImageInput.open(str(path))
     if source is None:
         raise OSError(f"{path}: cannot open: {oiio.geterror()}")
@@ -86,6 +94,14 @@ def _read(path: str | Path, pixel_type, pixels: bool = True) -> tuple[np.ndarray
         spec = source.spec()
         if not pixels:
             return None, spec
+        if not (1 <= spec.width <= MAX_IMAGE_SIDE and 1 <= spec.height <= MAX_IMAGE_SIDE and spec.depth <= 1):
+            raise ValueError(
+                f"{path}: the image is {spec.width} x {spec.height} pixels"
+                f"{f' x {spec.depth} deep' if spec.depth > 1 else ''}; at most {MAX_IMAGE_SIDE} x {MAX_IMAGE_SIDE} "
+                "(a 2-D image) is read"
+            )
+        if not 1 <= spec.nchannels <= MAX_CHANNELS:
+            raise ValueError(f"{path}: the image has {spec.nchannels} channels; at most {MAX_CHANNELS} are read")
         data = source.read_image(pixel_type)
         if data is None:
             raise OSError(f"{path}: read failed: {source.geterror()}")
@@ -140,7 +156,8 @@ def read_pixels(path: str | Path) -> tuple[np.ndarray, list[str]]:
     """An image file's pixels as float64 (height, width, channels), top row first, and its channel names.
 
     No colour decoding: integer files are normalised to [0, 1] (code / max code), float files (EXR) read as stored.
-    Raises :class:`OSError` when the file cannot be read.
+    Raises :class:`OSError` when the file cannot be read and :class:`ValueError` when it is larger than
+    :data:`MAX_IMAGE_SIDE` on a side or has more than :data:`MAX_CHANNELS` channels.
     """
     pixels, spec = _read(path, oiio.FLOAT)
     return pixels.astype(np.float64), list(spec.channelnames)
@@ -151,7 +168,7 @@ def read_channel(path: str | Path, channel: str) -> np.ndarray:
 
     ``channel`` is a channel name of the file (``R``, ``G``, ``B``, ``A``, ``Y``, ...); a one-channel file answers
     to any name. Raises :class:`OSError` when the file cannot be read and :class:`ValueError` when it has no such
-    channel.
+    channel or is too large (see :func:`read_pixels`).
     """
     image, names = read_pixels(path)
     if image.shape[2] == 1:

@@ -19,6 +19,10 @@ import trimesh
 
 #: File types :func:`load_mesh` accepts (by extension, lower case).
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
+#: Smallest and largest extent (mm, the longest side of the bounding box) of a mesh :func:`load_mesh` accepts.
+MESH_EXTENT_MM = (1e-3, 1e5)
+#: Smallest total triangle area of a loaded mesh, as a fraction of its extent squared (0 for all-degenerate faces).
+MIN_AREA_FRACTION = 1e-9
 
 
 class _Builder:
@@ -248,7 +252,9 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     Raises
     ------
     ValueError
-        Naming the file, if it does not exist, has an unsupported extension, cannot be parsed or holds no triangles.
+        Naming the file, if it does not exist, has an unsupported extension, cannot be parsed or holds no triangles,
+        if it is smaller or larger than :data:`MESH_EXTENT_MM`, if its triangles have no area, or if a vertex of a
+        triangle has a zero or non-finite normal.
     """
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -263,7 +269,25 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         raise ValueError(f"{path}: the file holds no triangles")
     if not np.all(np.isfinite(loaded.vertices)):
         raise ValueError(f"{path}: the mesh has non-finite vertex coordinates")
+    if loaded.faces.min() < 0 or loaded.faces.max() >= len(loaded.vertices):
+        raise ValueError(f"{path}: a face names a vertex the file does not have")
+    extent = float(np.ptp(loaded.vertices, axis=0).max())
+    if not MESH_EXTENT_MM[0] <= extent <= MESH_EXTENT_MM[1]:
+        raise ValueError(
+            f"{path}: the mesh is {extent:.3g} mm across; a product mesh (mm) is {MESH_EXTENT_MM[0]:g} to "
+            f"{MESH_EXTENT_MM[1]:g} mm across"
+        )
+    if not float(loaded.area) > MIN_AREA_FRACTION * extent * extent:
+        raise ValueError(f"{path}: the mesh's triangles have no area (all its faces are degenerate)")
     normals = np.asarray(loaded.vertex_normals)  # read from the file, else computed from the faces (and cached)
     if normals.shape != loaded.vertices.shape:
         raise ValueError(f"{path}: cannot compute vertex normals")
+    used = np.unique(loaded.faces)
+    length = np.linalg.norm(normals[used], axis=1)
+    if not np.all(np.isfinite(length) & (length > 1e-6)):
+        vertex = int(used[np.flatnonzero(~(np.isfinite(length) & (length > 1e-6)))[0]])
+        raise ValueError(
+            f"{path}: vertex {vertex} has no normal (zero or not finite: its faces are degenerate, or the file's "
+            "normal is zero); shading it would give NaN"
+        )
     return loaded

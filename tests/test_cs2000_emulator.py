@@ -312,8 +312,11 @@ def test_sequence_seeded_noise_and_script(tmp_path):
             host.remote()
             assert host.ask("IDDR") == b"OK00,CS-2000A ,2,7654321\r\n"
             assert host.ask("IDDR") == b"\x00\xffOK00,CS-2000A ,2,7654321\r\n"
-            for _ in range(5):
+            assert host.ask("MSWE,0") == b"OK00\r\n"  # the data stay readable after the spectrum
+            for _ in range(5):  # each measurement read out: the operator moves on to the next sample
                 host.measure()
+                read_spectrum(host, 1)
+                host.fields("MEDR,2,0,0")
             runs.append(emu.measurements)
             host.close()
     assert [m.sample for m in runs[0]] == ["baso4", "black", "baso4", "black", "black"]  # the last one stays
@@ -323,6 +326,51 @@ def test_sequence_seeded_noise_and_script(tmp_path):
     clean = illuminant_spd("D55") * reflectance * 0.01
     relative = runs[0][0].radiance / clean - 1
     assert 0.002 < relative.std() < 0.004  # noise = 0.003
+
+
+def test_the_sample_stays_until_its_measurement_was_read_out():
+    """A failed MEAS,1 (ER51, ER10) or a measurement read only in part is measured again on the same sample: the
+    sequence moves on only after the four spectral blocks and the colorimetric values were read."""
+    faults = [Fault("error", "MEAS", occurrence=2, code="ER51"), Fault("over_range", "MEAS", occurrence=3)]
+    samples = {"a": 0.2, "b": 0.5, "c": 0.8}
+    with Emulator(samples, sequence=["a", "b", "c"], time_scale=0.01, faults=faults) as emu:
+        host = Host(emu.port)
+        host.remote()
+        assert host.ask("MSWE,0") == b"OK00\r\n"
+        host.measure()  # a, read out
+        read_spectrum(host, 1)
+        host.fields("MEDR,2,0,0")
+        for code in (b"ER51\r\n", b"ER10\r\n"):  # b fails twice
+            host.port.write(b"MEAS,1\r\n")
+            assert host.line() == code
+        host.measure()  # b, only the spectrum read: the operator has not moved on
+        read_spectrum(host, 1)
+        host.measure()  # b again, read out
+        read_spectrum(host, 1)
+        host.fields("MEDR,2,0,101")
+        host.measure()  # c
+        host.close()
+        assert [m.sample for m in emu.measurements] == ["a", "b", "b", "c"]
+        assert emu.under_instrument == "c"
+
+
+def test_a_colorimetry_fault_replaces_the_values_sent():
+    fault = Fault("colorimetry", "MEDR,2,0,0", occurrence=1, values={"x": 10.0, "y": 10.0})
+    with Emulator({"w": 0.9}, time_scale=0.01, faults=[fault]) as emu:
+        host = Host(emu.port)
+        host.remote()
+        assert host.ask("MSWE,0") == b"OK00\r\n"
+        host.measure()
+        corrupted = parse_colorimetric(host.fields("MEDR,2,0,0"), 0)
+        honest = parse_colorimetric(host.fields("MEDR,2,0,0"), 0)
+        truth = emu.last_measurement.colorimetric
+        host.close()
+    assert (corrupted["x"], corrupted["y"]) == (10.0, 10.0) and corrupted["Lv"] == honest["Lv"]
+    assert abs(honest["x"] - truth["x"]) < 1e-4 and abs(honest["y"] - truth["y"]) < 1e-4
+    with pytest.raises(ValueError, match="colorimetric names"):
+        Fault("colorimetry", "MEDR", values={"q": 1.0})
+    with pytest.raises(ValueError, match="applies to MEDR"):
+        Fault("colorimetry", "MEAS", values={"x": 1.0})
 
 
 def test_bad_scripts_are_refused_with_the_file_named(tmp_path):

@@ -663,3 +663,37 @@ def test_second_difference_penalty_gradient():
                 return penalty(moved)
 
             assert abs(grad[j] - mpmath.diff(along, exact[j])) <= 1e-10 * (1 + abs(value))
+
+
+# --- readings the model cannot explain ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("saunderson", [None, SAUNDERSON], ids=["plain", "saunderson"])
+@pytest.mark.parametrize("method", ["two-constant", "black-white", "lsq"])
+@pytest.mark.parametrize("where", ["film over black", "white card and every reading"])
+def test_readings_of_1_5_give_finite_flagged_k_and_s(tmp_path, capsys, foundation, method, saunderson, where):
+    """1.5, the spectral CSV's largest reflectance, cannot come from a KM film (at most 1, with or without surface
+    reflection); over a backing above 1 the model diverged (inf, then NaN in MATERIAL.json: exit 70). Now such
+    readings are fitted as 1 and their wavelengths flagged out_of_range; the residuals keep the readings."""
+    wavelengths, K, S = foundation
+    manifest = write_sample(tmp_path / "s", wavelengths, K, S, saunderson=saunderson)
+    spike = 10
+    for name in ("readings.csv", "cards.csv"):
+        table = read_spectra_csv(manifest.parent / name)
+        values = np.array(table.values)
+        if name == "cards.csv" and where.startswith("white card"):
+            values[1, spike] = 1.5
+        if name == "readings.csv":
+            rows = [1] if where == "film over black" else slice(None)
+            values[rows, spike] = 1.5
+        write_spectra_csv(dataclasses.replace(table, values=values), manifest.parent / name)
+    out = tmp_path / "m.json"
+    extra = ["--saunderson", f"{saunderson[0]},{saunderson[1]}"] if saunderson else []
+    status, err = run_fit(capsys, str(manifest), "-o", str(out), "--method", method, *extra)
+    assert status == 0, err
+    doc = strict_json(out)
+    assert float(wavelengths[spike]) in doc["flags"]["out_of_range"]
+    material = read_material(out)
+    assert np.all(np.isfinite(material.K)) and np.all(np.isfinite(material.S))
+    film = material.measurements[1]
+    assert film.residuals[spike] < -0.4  # predicted (at most 1) minus the 1.5 read

@@ -424,3 +424,338 @@ def test_replay_clock_follows_the_recording_in_fast_timing():
         pytest.fail("the replay clock never reached the next recorded write")
     assert seen == sorted(seen)  # never goes back
     port.close()
+
+
+# ------------------------------------------------------------------------------- a session follows one plan
+
+DEMO_SESSIONS = ROOT / "recipes" / "demo" / "sessions"
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (relative name -> bytes), to show that a refused command changed nothing."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def stopped(tmp_path, capsys) -> Path:
+    """A session folder of F1's plan that stopped after 4 of 8 readings (the over_range recording replayed)."""
+    folder = tmp_path / "F1"
+    status, err = measure(capsys, f"replay://{SESSIONS / 'over_range.jsonl'}", folder)
+    assert status == 2 and "4 of 8 readings are saved" in err, err
+    return folder
+
+
+def test_a_sample_name_that_leads_out_of_the_plan_folder_is_refused(tmp_path, capsys):
+    """name = ".." without -o would make the plan folder's parent the session folder (and replace a manifest.toml
+    there): refused, naming the field and its line, and nothing is written anywhere."""
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    plan = plans / "plan.toml"
+    plan.write_text(PLAN.read_text(encoding="utf-8").replace('name = "F1"', 'name = ".."', 1), encoding="utf-8")
+    (tmp_path / "manifest.toml").write_text("# someone else's manifest\n", encoding="utf-8")
+    before = snapshot(tmp_path)
+    status, err = kmpipe(capsys, "measure", plan, "--port", f"replay://{SESSIONS / 'complete.jsonl'}", "--unattended")
+    assert status == 2
+    assert f"{plan}, line 3:" in err and "field 'sample.name'" in err and "'..'" in err, err
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("name", ["..", ".", "a/b"])
+def test_unsafe_sample_names_are_refused_by_the_plan(tmp_path, name):
+    from kmpipe.errors import InputError
+    from kmpipe.measure import load_plan
+
+    plan = edited_plan(tmp_path, 'name = "F1"', f"name = {json.dumps(name)}")
+    with pytest.raises(InputError) as caught:
+        load_plan(plan)
+    assert (caught.value.path, caught.value.line, caught.value.field) == (plan, 3, "sample.name")
+
+
+def copied_log(tmp_path: Path, name: str = "complete") -> Path:
+    log = tmp_path / f"{name}.jsonl"
+    log.write_bytes((SESSIONS / f"{name}.jsonl").read_bytes())
+    return log
+
+
+@pytest.mark.parametrize(
+    "case", ["record-is-replay", "record-is-plan", "record-in-session", "o-is-plan", "o-holds-plan-as-file"]
+)
+def test_outputs_that_are_inputs_are_refused_before_anything_is_opened(tmp_path, capsys, case):
+    log = copied_log(tmp_path)
+    plan = tmp_path / "plan.toml"
+    plan.write_bytes(PLAN.read_bytes())
+    folder = tmp_path / "F1"
+    record, field = {
+        "record-is-replay": (tmp_path / "." / "complete.jsonl", "--record"),  # the same file, spelt otherwise
+        "record-is-plan": (plan, "--record"),
+        "record-in-session": (folder / "session.json", "--record"),
+        "o-is-plan": (None, "-o"),
+        "o-holds-plan-as-file": (None, "-o"),
+    }[case]
+    if case == "o-is-plan":
+        folder = plan
+    if case == "o-holds-plan-as-file":
+        plan = tmp_path / "manifest.toml"  # a plan named like a session file, and -o its folder
+        plan.write_bytes(PLAN.read_bytes())
+        folder = tmp_path
+    before = snapshot(tmp_path)
+    more = ("--record", record) if record is not None else ()
+    status, err = measure(capsys, f"replay://{log}", folder, *more, plan=plan)
+    assert status == 2
+    assert f"field '{field}'" in err, err
+    assert snapshot(tmp_path) == before  # the log being replayed was not appended to; no folder was made
+
+
+@pytest.mark.parametrize("case", ["o-is-a-file", "record-is-a-folder", "record-in-a-missing-folder"])
+def test_output_paths_that_cannot_be_written(tmp_path, capsys, case):
+    folder = tmp_path / "F1"
+    if case == "o-is-a-file":
+        folder = tmp_path / "taken.txt"
+        folder.write_text("x", encoding="utf-8")
+    record = {"record-is-a-folder": tmp_path, "record-in-a-missing-folder": tmp_path / "no" / "s.jsonl"}.get(case)
+    field, named = ("-o", folder) if record is None else ("--record", record)
+    more = ("--record", record) if record is not None else ()
+    before = snapshot(tmp_path)
+    status, err = measure(capsys, f"replay://{SESSIONS / 'complete.jsonl'}", folder, *more)
+    assert status == 2
+    assert f"{named}" in err and f"field '{field}'" in err, err
+    assert snapshot(tmp_path) == before and not (tmp_path / "no").exists()
+
+
+def test_a_missing_parent_of_the_session_folder_is_created(tmp_path, capsys):
+    folder = tmp_path / "new" / "deeper" / "F1"
+    status, err = measure(capsys, f"replay://{SESSIONS / 'complete.jsonl'}", folder)
+    assert status == 0, err
+    assert (folder / "manifest.toml").is_file()
+
+
+def test_resume_with_another_plan_is_refused_and_changes_nothing(stopped, tmp_path, capsys):
+    before = snapshot(stopped)
+    digest = json.loads((stopped / "session.json").read_text(encoding="utf-8"))["plan"]["sha256"]
+    other = ROOT / "recipes" / "samples" / "F2" / "plan.toml"
+    edited = edited_plan(tmp_path, "repeats = 1", "repeats = 1  # the same sample, another plan")
+    for plan in (other, edited):
+        status, err = measure(capsys, str(tmp_path / "no-port"), stopped, "--resume", plan=plan)
+        assert status == 2
+        assert f"{stopped / 'session.json'}" in err and str(plan) in err, err
+        assert f"follows plan {digest[:12]} of sample F1" in err, err
+        assert snapshot(stopped) == before  # byte for byte
+
+
+def test_resume_of_a_session_folder_without_its_plan_is_refused(stopped, tmp_path, capsys):
+    """session.json of the older format (version 1, no plan recorded): refused, it cannot be checked."""
+    state = json.loads((stopped / "session.json").read_text(encoding="utf-8"))
+    del state["plan"]
+    (stopped / "session.json").write_text(json.dumps(state | {"kmpipe_session": 1}), encoding="utf-8")
+    before = snapshot(stopped)
+    status, err = measure(capsys, str(tmp_path / "no-port"), stopped, "--resume")
+    assert status == 2
+    assert "older kmpipe" in err and "field 'plan'" in err and str(PLAN) in err, err
+    assert snapshot(stopped) == before
+
+
+def cut(path: Path, keep: float) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * keep)])
+
+
+DAMAGE = {
+    "session-json-truncated": ("session.json", lambda f: cut(f / "session.json", 0.5)),
+    "session-json-empty": ("session.json", lambda f: (f / "session.json").write_bytes(b"")),
+    "session-json-random-bytes": (
+        "session.json",
+        lambda f: (f / "session.json").write_bytes(np.random.default_rng(7).bytes(512)),
+    ),
+    "session-json-not-a-state": ("session.json", lambda f: (f / "session.json").write_text("[1, 2]\n")),
+    "reading-without-its-column": (
+        "radiance.csv",
+        lambda f: (f / "radiance.csv").write_text(
+            (f / "radiance.csv").read_text(encoding="utf-8").replace(",white,", ",whitish,", 1), encoding="utf-8"
+        ),
+    ),
+    "radiance-csv-truncated": ("radiance.csv", lambda f: cut(f / "radiance.csv", 0.6)),
+    "radiance-csv-last-byte-cut": ("radiance.csv", lambda f: cut(f / "radiance.csv", 1 - 1e-9)),
+    "radiance-csv-missing": ("session.json", lambda f: (f / "radiance.csv").unlink()),
+}
+
+
+@pytest.mark.parametrize("case", list(DAMAGE))
+def test_resume_of_a_damaged_session_says_what_is_damaged_and_changes_nothing(stopped, tmp_path, capsys, case):
+    damaged, damage = DAMAGE[case]
+    damage(stopped)
+    before = snapshot(stopped)
+    status, err = measure(capsys, f"replay://{SESSIONS / 'complete.jsonl'}", stopped, "--resume")
+    assert status == 2, err
+    assert "Traceback" not in err and "internal error" not in err.lower(), err
+    named = stopped / ("radiance.csv" if case == "radiance-csv-missing" else damaged)
+    assert str(named) in err and "the saved readings are untouched" in err, err
+    assert snapshot(stopped) == before
+
+
+def test_replay_of_another_samples_log_is_refused_and_writes_nothing(tmp_path, capsys):
+    folder = tmp_path / "F1"
+    l1 = json.loads((DEMO_SESSIONS / "L1.jsonl").read_text(encoding="utf-8").splitlines()[0])["meta"]
+    status, err = measure(capsys, f"replay://{DEMO_SESSIONS / 'L1.jsonl'}", folder)
+    assert status == 2
+    assert f"{DEMO_SESSIONS / 'L1.jsonl'}, line 1:" in err and "field '--port'" in err, err
+    assert f"was recorded for sample L1 (plan sha256 {l1['plan_sha256'][:12]}), not F1" in err, err
+    assert not folder.exists()
+    # the same sample with another plan (an edited copy of F1's)
+    edited = edited_plan(tmp_path, "repeats = 1", "repeats = 1  # edited")
+    status, err = measure(capsys, f"replay://{SESSIONS / 'complete.jsonl'}", folder, plan=edited)
+    assert status == 2 and "was recorded for sample F1" in err and str(edited) in err, err
+    assert not folder.exists()
+
+
+def test_a_recorded_log_names_its_sample_and_plan_and_a_log_without_them_is_replayed_with_a_warning(tmp_path, capsys):
+    from kmpipe.measure import plan_digest
+
+    [connection] = read_session_log(SESSIONS / "complete.jsonl")
+    assert connection.header["meta"] == {"sample": "F1", "plan_sha256": plan_digest(PLAN)}
+    old = tmp_path / "old.jsonl"  # as recorded before kmpipe wrote the metadata
+    lines = (SESSIONS / "complete.jsonl").read_text(encoding="utf-8").splitlines(keepends=True)
+    header = json.loads(lines[0]) | {"meta": {}}
+    old.write_text(json.dumps(header) + "\n" + "".join(lines[1:]), encoding="utf-8")
+    capsys.readouterr()
+    status = main(["measure", str(PLAN), "--port", f"replay://{old}", "-o", str(tmp_path / "F1"), "--unattended"])
+    out = capsys.readouterr()
+    assert status == 0, out.err
+    assert "does not record which sample and plan" in out.out + out.err
+
+
+def test_record_appends_only_to_a_log_of_the_same_plan(tmp_path, capsys):
+    log = tmp_path / "L1.jsonl"
+    log.write_bytes((DEMO_SESSIONS / "L1.jsonl").read_bytes())
+    before = log.read_bytes()
+    status, err = measure(capsys, f"replay://{SESSIONS / 'complete.jsonl'}", tmp_path / "F1", "--record", log)
+    assert status == 2 and "recorded for sample L1" in err and "field '--record'" in err, err
+    assert log.read_bytes() == before and not (tmp_path / "F1").exists()
+
+
+# ------------------------------------------------------------------------- the sample under the instrument
+
+
+def expected_radiance(sample: str) -> np.ndarray:
+    """The emulator's documented ground truth, computed independently: CIE D55 (colour-science's table, linear
+    interpolation to 1 nm, 100 at 560 nm) x the sample's reflectance (F1's emulator_reflectance.csv) x the script's
+    gain, rounded to float32 (what the instrument sends in hex); the emulator's noise is off."""
+    import colour
+
+    d55 = colour.SDS_ILLUMINANTS["D55"]
+    wavelengths = np.arange(380.0, 781.0)
+    spd = np.interp(wavelengths, d55.wavelengths, d55.values)
+    spd *= 100.0 / spd[wavelengths == 560][0]
+    table = read_spectra_csv(F1 / script_settings()["file"])
+    reflectance = np.interp(wavelengths, table.wavelengths, np.asarray(table.column(sample), dtype=np.float64))
+    return (spd * reflectance * script_settings()["gain"]).astype(np.float32).astype(np.float64)
+
+
+def assert_each_reading_is_its_sample(folder: Path) -> None:
+    _, radiance = radiance_table(folder / "radiance.csv")
+    for column, sample in zip(radiance, script_settings()["sequence"], strict=False):
+        np.testing.assert_allclose(radiance[column], expected_radiance(sample), rtol=1e-6, err_msg=column)
+
+
+def test_readings_after_faults_and_resumes_measure_the_sample_they_are_named_for(tmp_path, capsys):
+    """ER51 (temperature) on the 3rd MEAS,1 and ER10 (over range) on the 6th stop the session; each --resume goes
+    on with the same instrument, whose sample stays put until a reading was read out: every reading is of the
+    sample it is named for, the retried ones included."""
+    folder = tmp_path / "F1"
+    faults = [Fault("error", "MEAS", occurrence=3, code="ER51"), Fault("over_range", "MEAS", occurrence=6)]
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, noise=0.0, faults=faults) as emulator:
+        status, err = measure(capsys, emulator.port, folder)
+        assert status == 2 and "ER51" in err and "2 of 8 readings are saved" in err, err
+        assert_each_reading_is_its_sample(folder)
+        status, err = measure(capsys, emulator.port, folder, "--resume")
+        assert status == 2 and "ER10" in err and "4 of 8 readings are saved" in err, err
+        assert_each_reading_is_its_sample(folder)
+        status, err = measure(capsys, emulator.port, folder, "--resume")
+        assert status == 0, err
+        measured = [m.sample for m in emulator.measurements]
+    assert measured == script_settings()["sequence"]  # the failed MEAS,1 completed nothing
+    _, radiance = radiance_table(folder / "radiance.csv")
+    assert len(radiance) == READINGS
+    assert_each_reading_is_its_sample(folder)
+
+
+def test_a_retried_reading_measures_the_same_sample(tmp_path, capsys):
+    """ER02 on a spectral block: the reading is measured again, on the sample still under the instrument."""
+    folder = tmp_path / "F1"
+    busy = Fault("busy", "MEDR,1,1,2", occurrence=3)
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, noise=0.0, faults=[busy]) as emulator:
+        status, err = measure(capsys, emulator.port, folder)
+        measured = [m.sample for m in emulator.measurements]
+    assert status == 0, err
+    sequence = script_settings()["sequence"]
+    assert measured == [*sequence[:3], sequence[2], *sequence[3:]]  # the 3rd sample twice
+    assert_each_reading_is_its_sample(folder)
+
+
+# ------------------------------------------------------------------------------------- colorimetric checks
+
+
+def test_colorimetry_that_does_not_fit_its_spectrum_is_read_again(tmp_path, capsys):
+    """x = y = 10 in the 3rd reading's colorimetric block, once: a transfer error, the data are read again (not
+    measured again) and the session completes with the instrument's honest values."""
+    folder = tmp_path / "F1"
+    corrupt = Fault("colorimetry", "MEDR,2,0,0", occurrence=3, values={"x": 10.0, "y": 10.0})
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[corrupt]) as emulator:
+        status, err = measure(capsys, emulator.port, folder)
+        truth = emulator.measurements
+    assert status == 0, err
+    assert len(truth) == READINGS  # read again, not measured again
+    state = json.loads((folder / "session.json").read_text(encoding="utf-8"))
+    third = state["readings"][2]
+    assert third["column"] == "white"
+    assert abs(third["x"] - truth[2].colorimetric["x"]) < 1e-4 and abs(third["y"] - truth[2].colorimetric["y"]) < 1e-4
+
+
+def test_colorimetry_that_never_fits_stops_the_session_naming_the_reading(tmp_path, capsys):
+    folder = tmp_path / "F1"
+    corrupt = [Fault("colorimetry", "MEDR,2,0,0", occurrence=n, values={"Lv": 1.0}) for n in (3, 4, 5)]
+    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=corrupt) as emulator:
+        status, err = measure(capsys, emulator.port, folder)
+    assert status == 2
+    stopped = STOPPED.search(err)
+    assert stopped and (stopped["saved"], stopped["total"]) == ("2", str(READINGS)), err
+    assert "reading white" in stopped["detail"] and "Lv = 1 cd/m2" in stopped["detail"], err
+    state = json.loads((folder / "session.json").read_text(encoding="utf-8"))
+    assert [r["column"] for r in state["readings"]] == ["white_standard", "black"]
+    assert not (folder / "manifest.toml").exists()
+
+
+@pytest.mark.parametrize(
+    ("values", "problem"),
+    [
+        ({"x": 10.0, "y": 10.0}, "x = 10 lies outside 0-1"),
+        ({"x": 0.6, "y": 0.5}, "x + y = 1.1 exceeds 1"),
+        ({"Lv": -1.0}, "Lv = -1 cd/m2 is not a luminance"),
+        ({"Lv": float("inf")}, "is not a luminance"),
+        ({"x": 0.3}, "chromaticity x = 0.3000, but its spectrum gives"),
+        ({"Lv": 1.03}, "Lv = 1.03 cd/m2, but its spectrum gives 1"),
+    ],
+)
+def test_colorimetry_problem_checks_plausibility_and_the_spectrum(values, problem):
+    import colour
+
+    from kmpipe.measure import colorimetry_problem
+
+    cmfs = np.asarray(colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"][np.arange(380, 781)])
+    radiance = np.ones(401) / (683.0 * cmfs[:, 1].sum())  # an equal-energy spectrum of 1 cd/m2: x = y = 1/3
+    honest = {"Lv": 1.0, "x": 1 / 3, "y": 1 / 3}
+    assert colorimetry_problem(radiance, honest) is None
+    assert colorimetry_problem(radiance, honest | {"Lv": 1.015, "x": 0.337}) is None  # within the tolerances
+    assert colorimetry_problem(radiance, dict.fromkeys(honest)) is None  # sentinels are not checked
+    found = colorimetry_problem(radiance, honest | values)
+    assert found is not None and problem in found, found
+
+
+def test_kmpipe_run_refuses_to_replay_another_samples_log(tmp_path):
+    """``kmpipe run`` replays a product's log through ``run_session(plan, "replay://LOG")``: the same check."""
+    from kmpipe.errors import InputError
+    from kmpipe.run import do_material
+
+    with pytest.raises(InputError, match="was recorded for sample L1") as caught:
+        do_material("replay", {"plan": str(PLAN), "log": str(DEMO_SESSIONS / "L1.jsonl")}, str(tmp_path / "F1"))
+    assert caught.value.path == DEMO_SESSIONS / "L1.jsonl"
+    assert not (tmp_path / "F1" / "material.json").exists() and not (tmp_path / "F1" / "session").exists()

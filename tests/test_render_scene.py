@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from kmpipe import cli
+from kmpipe.errors import InputError
 from kmpipe.material import read_material
 from kmpipe.optical_tables import composite
 from kmpipe.render import plan_scene
@@ -381,7 +382,7 @@ def test_an_albedo_texture_on_a_black_substrate_exits_2(tmp_path, material_file,
 
 
 def test_a_shadowing_point_light_inside_the_scene_exits_2(tmp_path, material_file, capsys):
-    light = '\n[[light]]\nkind = "point"\nposition = [0.0, 0.0, 10.0]\n'
+    light = '\n[[light]]\nkind = "point"\nposition = [0.0, 0.0, 60.0]\n'  # outside the card, over its ground
     scene_path = write_scene(tmp_path, material_file, light + "\n[ground]\nreflectance = 0.3\n")
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
     err = " ".join(capsys.readouterr().err.split())
@@ -404,3 +405,163 @@ def test_a_mesh_file_without_uv_renders_uniform_films_and_refuses_maps(tmp_path,
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert "no texture coordinates" in err and "layer[1].thickness_map" in err
+
+
+# --- hostile values in scenes and recipes: exit 2 naming the file and field, never exit 70 ------------------
+
+
+def _render_status(tmp_path, scene_path, capsys) -> str:
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "scene.toml" in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "frame_000.exr").exists()
+    return err
+
+
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        ("[output]\nexposure_ev = nan\n", "output.exposure_ev"),
+        ("\n[[light]]\ndirection = [0, 0, 1]\nradiance = [1e308, 1, 1]\n", "light[2].radiance"),
+        ("\n[[light]]\ndirection = [0, 0, 1e-30]\n", "light[2]"),
+        ("\n[[light]]\nkind = \"point\"\nposition = [0, 0, inf]\n", "light[2].position"),
+        ("\n[[light]]\nkind = \"point\"\nposition = [0, 0, 0]\nshadows = true\n", "light[2].position"),
+        ("\n[[light]]\nkind = \"point\"\nposition = [0, 0, 500]\nreference_distance_mm = 1e300\n",
+         "light[2].reference_distance_mm"),
+    ],
+)  # fmt: skip
+def test_a_hostile_light_or_output_value_exits_2(tmp_path, material_file, capsys, extra, field):
+    err = _render_status(tmp_path, write_scene(tmp_path, material_file, extra), capsys)
+    assert f"'{field}" in err
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ("azimuth_deg = 0.0", "azimuth_deg = nan", "camera.azimuth_deg"),
+        ("distance_mm = 200", "distance_mm = inf", "camera.distance_mm"),
+        ("distance_mm = 200", "distance_mm = 1e300", "camera.distance_mm"),
+        (f"resolution = [{SIZE}, {SIZE}]", "resolution = [8192, 8192]", "scene.resolution"),
+        ("accuracy = 0.5", 'mode = "bands:33"', "scene.mode"),
+        ("accuracy = 0.5", "accuracy = inf", "scene.accuracy"),
+    ],
+)
+def test_a_hostile_scene_or_camera_value_exits_2(tmp_path, material_file, capsys, old, new, field):
+    path = write_scene(tmp_path, material_file)
+    path.write_text(path.read_text(encoding="utf-8").replace(old, new), encoding="utf-8")
+    err = _render_status(tmp_path, path, capsys)
+    assert f"'{field}" in err
+
+
+@pytest.mark.parametrize(
+    ("obj", "words"),
+    [
+        ("v 0 0 0\nv 1e-30 0 0\nv 0 1e-30 0\nf 1 2 3\n", "mm across"),
+        ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "no area"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nv 6 5 5\nv 7 5 5\nf 1 2 3\nf 4 5 6\n", "has no normal"),
+    ],
+    ids=["1e-30 mm", "zero area", "one degenerate face"],
+)
+def test_a_degenerate_mesh_file_exits_2_naming_it(tmp_path, material_file, capsys, obj, words):
+    (tmp_path / "tiny.obj").write_text(obj, encoding="utf-8")
+    path = write_scene(tmp_path, material_file)
+    path.write_text(path.read_text(encoding="utf-8").replace('mesh = "card"', 'mesh = "tiny.obj"'), encoding="utf-8")
+    err = _render_status(tmp_path, path, capsys)
+    assert "'scene.mesh'" in err and "tiny.obj" in err and words in err
+
+
+def test_a_thickness_map_larger_than_the_limit_is_refused_from_its_header(tmp_path, material_file, capsys, monkeypatch):
+    """A map over renderer.image_io.MAX_IMAGE_SIDE (8192) is refused from its header; here the limit is lowered to
+    16 so that the test needs no 20000 x 20000 image, and reading the pixels would fail the test."""
+    import renderer.image_io as image_io
+    from renderer.image_io import write_map
+
+    write_map(tmp_path / "map.png", np.full((32, 32), 0.5))
+    monkeypatch.setattr(image_io, "MAX_IMAGE_SIDE", 16)
+    monkeypatch.setattr(image_io.oiio.ImageInput, "read_image", lambda *a: pytest.fail("pixels were read"))
+    path = write_scene(tmp_path, material_file)
+    text = path.read_text(encoding="utf-8").replace(
+        'thickness = "20 um"', '[layer.thickness_map]\nfile = "map.png"\nmax = "30 um"'
+    )
+    path.write_text(text, encoding="utf-8")
+    err = _render_status(tmp_path, path, capsys)
+    assert "'layer[1].thickness_map'" in err and "32 x 32" in err and "16 x 16" in err
+
+
+def test_a_recipe_mode_is_checked_as_a_scene_mode_is(tmp_path, material_file):
+    from kmpipe.recipe import load_recipe
+
+    path = tmp_path / "recipe.toml"
+    path.write_text(
+        f'[line]\nname = "L"\nmode = "bands:99"\n\n[[product]]\nname = "P"\nmaterial = "{material_file}"\n',
+        encoding="utf-8",
+    )
+    with pytest.raises(InputError) as err:
+        load_recipe(path)
+    assert (err.value.path, err.value.field, err.value.line) == (path, "line.mode", 3)
+    assert "32" in err.value.message
+
+
+def test_the_scene_mode_limit_is_the_layer_pass_channel_count():
+    from kmpipe.scene import RenderSettings
+    from renderer.layers import MAX_CHANNELS
+
+    assert RenderSettings(mode=f"bands:{MAX_CHANNELS}").mode == f"bands:{MAX_CHANNELS}"
+    with pytest.raises(ValueError, match=f"N <= {MAX_CHANNELS}"):
+        RenderSettings(mode=f"bands:{MAX_CHANNELS + 1}")
+
+
+# --- frames: EXR and PNG written as a pair, never a non-finite frame -----------------------------------------
+
+
+def test_a_render_writes_exr_and_png_pairs_only(tmp_path, material_file, capsys):
+    scene_path = write_scene(tmp_path, material_file, "[turntable]\nframes = 2\n")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert names == ["frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png"]
+
+
+def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_path, material_file, monkeypatch):
+    import renderer.layers
+    from kmpipe.render import render_scene
+
+    monkeypatch.setattr(renderer.layers, "render_layers", lambda *a, **k: np.full((SIZE, SIZE, 3), np.nan))
+    with pytest.raises(RuntimeError, match="NaN or infinite"):
+        render_scene(write_scene(tmp_path, material_file), tmp_path / "out", echo=lambda text: None)
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_an_exit_between_the_renames_leaves_no_exr_without_its_png(tmp_path, material_file, monkeypatch):
+    import kmpipe.render
+    from kmpipe.render import render_scene
+
+    scene = load_scene(write_scene(tmp_path, material_file))
+    out = tmp_path / "out"
+    render_scene(scene, out, echo=lambda text: None)
+    real = kmpipe.render.os.replace
+
+    def fail_on_exr(source, target):
+        if Path(target) == out / "frame_000.exr":  # the EXR's rename, after the PNG's
+            raise KeyboardInterrupt
+        real(source, target)
+
+    monkeypatch.setattr(kmpipe.render.os, "replace", fail_on_exr)
+    with pytest.raises(KeyboardInterrupt):
+        render_scene(scene, out, echo=lambda text: None)
+    assert sorted(p.name for p in out.iterdir()) == ["frame_000.png"]
+
+
+def test_more_bands_than_the_materials_wavelengths_exits_2(tmp_path, material_file, capsys):
+    import dataclasses
+
+    from kmpipe.material import write_material
+
+    full = read_material(material_file)
+    measurements = tuple(dataclasses.replace(m, residuals=m.residuals[:4]) for m in full.measurements)
+    cut = {"wavelengths": full.wavelengths[:4], "K": full.K[:4], "S": full.S[:4], "flags": full.flags[:4],
+           "K_stderr": None, "S_stderr": None, "measurements": measurements}  # fmt: skip
+    write_material(dataclasses.replace(full, **cut), tmp_path / "four.json")
+    path = write_scene(tmp_path, tmp_path / "four.json", mode_line='mode = "bands:5"')
+    err = _render_status(tmp_path, path, capsys)
+    assert "'scene.mode'" in err and "(4)" in err

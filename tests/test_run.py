@@ -26,7 +26,7 @@ import pytest
 from PIL import Image
 
 from kmpipe import cli
-from kmpipe.run import FRAMES_PER_TASK, execute, plan_run
+from kmpipe.run import FRAMES_PER_TASK, LOCK, execute, plan_run
 from kmpipe.spectra import read_spectra_csv
 from renderer.image_io import read_exr, write_map
 
@@ -370,13 +370,15 @@ def test_killed_run_leaves_no_partial_output_and_resumes(tmp_path, reference):
         assert all((out / o).is_file() for o in record["outputs"]), path
     assert recorded(out) < ALL_TASKS  # killed part way
     # Temporary files of interrupted writes may remain; they are hidden (a leading dot), never outputs.
-    hidden = {p.relative_to(out) for p in out.rglob("*") if p.is_file()} - visible_files(out)
+    hidden = {p.relative_to(out) for p in out.rglob("*") if p.is_file()} - visible_files(out) - {LOCK}
     leftovers = {p for p in hidden if p.name.startswith(".")}
     assert {p.parent for p in hidden - leftovers} <= {Path(".kmpipe", "tasks")}  # the rest are task records
     print("temporary files left by the killed run:", sorted(map(str, leftovers)))
 
     assert run(recipe, out) == cli.EXIT_OK
     assert recorded(out) == ALL_TASKS
+    hidden = {p.relative_to(out) for p in out.rglob("*") if p.is_file()} - visible_files(out)
+    assert {p for p in hidden if p.parent != Path(".kmpipe", "tasks")} == {LOCK}  # the leftovers are gone
     assert visible_files(out) == visible_files(reference[1])
     assert_same_frames(out, reference[1])
 

@@ -635,6 +635,15 @@ def test_replay_urls(recorded, tmp_path, monkeypatch):
             serial.serial_for_url(bad)
 
 
+def test_parse_url_gives_the_log_and_the_options():
+    from instruments.urlhandler.protocol_replay import parse_url
+
+    assert parse_url("replay:///tmp/a%3Fb.jsonl") == ("/tmp/a?b.jsonl", "fast", True, None)
+    assert parse_url("replay://logs/s.jsonl?timing=real&strict=0&connection=2") == ("logs/s.jsonl", "real", False, 2)
+    with pytest.raises(SerialException, match="expected"):
+        parse_url("socket://localhost:1")
+
+
 def test_replay_accepts_settings_and_modem_lines(recorded):
     log_path, _ = recorded
     port = replay(log_path)

@@ -290,9 +290,13 @@ def test_refusals_name_file_and_line(tmp_path, case):
 
 
 def test_refusals_without_a_line(tmp_path):
-    with pytest.raises(InputError, match="file not found") as err:
+    with pytest.raises(InputError, match="does not exist") as err:
         read_spectra_csv(tmp_path / "absent.csv")
     assert err.value.path == tmp_path / "absent.csv"
+    with pytest.raises(InputError, match="is a folder; expected a spectral CSV file") as err:
+        read_spectra_csv(tmp_path)
+    with pytest.raises(InputError, match="not a regular file"):
+        read_spectra_csv("/dev/zero")
 
     only_metadata = write_text(tmp_path, "# quantity: radiance\n\n# note: nothing\n", "header_only.csv")
     with pytest.raises(InputError, match="no header row") as err:

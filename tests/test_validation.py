@@ -1267,3 +1267,15 @@ def test_formats_doc_lists_every_field_key_and_check(clean, f2):
     defaults = Thresholds()
     for f in dataclasses.fields(Thresholds):
         assert re.search(rf"^\| `{f.name}` \| `{getattr(defaults, f.name)!r}` \|", thresholds_doc, re.MULTILINE), f.name
+
+
+def test_the_report_is_written_before_validation_json(clean, tmp_path, monkeypatch):
+    """validation.json (what batch readers look for) comes last: an exit between leaves no JSON without its page."""
+    import kmpipe.report as report_module
+
+    order = []
+    real = report_module.write_text_atomically
+    monkeypatch.setattr(report_module, "write_text_atomically", lambda path, text: (order.append(path.name),
+                                                                                    real(path, text)))  # fmt: skip
+    report_module.write_sample_report(clean.report, tmp_path / "out")
+    assert order == ["report.html", "validation.json"]

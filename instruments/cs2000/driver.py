@@ -242,14 +242,21 @@ class CS2000:
     def read_conditions(self) -> protocol.Conditions:
         return protocol.parse_conditions(self.command("MEDR", 0, 0, 1))
 
-    def take_reading(self, *, progress: Callable[[float, int], None] | None = None) -> Reading:
-        """Measure, then read spectrum, colorimetry and conditions (needs the measure button disabled)."""
-        announced = self.measure(progress=progress)
+    def read_data(self, measuring_seconds: int) -> Reading:
+        """Read the last measurement's spectrum, colorimetry and conditions (again, after a transfer that went
+        wrong: with the measure button disabled the data stay until the next measurement).
+
+        ``measuring_seconds`` is the time the instrument announced for that measurement (s), kept in the Reading.
+        """
         radiance = self.read_spectrum()
         return Reading(
             wavelengths=np.arange(380.0, 781.0),
             radiance=radiance,
             colorimetry=self.read_colorimetry(),
             conditions=self.read_conditions(),
-            measuring_seconds=announced,
+            measuring_seconds=measuring_seconds,
         )
+
+    def take_reading(self, *, progress: Callable[[float, int], None] | None = None) -> Reading:
+        """Measure, then read spectrum, colorimetry and conditions (needs the measure button disabled)."""
+        return self.read_data(self.measure(progress=progress))

@@ -33,7 +33,16 @@ change how a reply is sent, the immediate reply or, with ``at="completion"``, th
 faults answer an error instead (``busy`` ER02 and ``no_data`` ER20 at once; ``error``/``over_range`` on ``MEAS,1``
 after the pre-measurement or, with ``at="completion"``, as the completion line). ``no_completion`` never sends the
 completion line (``MEDR`` then answers ER02 until the measuring time has passed); ``calculation_error`` makes a
-measurement's values sentinels; ``late_completion`` sends a stray ``OK00`` after the reply to ``MEAS,0``.
+measurement's values sentinels; ``late_completion`` sends a stray ``OK00`` after the reply to ``MEAS,0``;
+``colorimetry`` answers a colorimetric ``MEDR`` with some values replaced (a corrupted transfer: they no longer match
+the spectrum).
+
+The sample under the instrument
+-------------------------------
+A samples ``sequence`` lists what the operator puts under the instrument, in order. The operator moves on to the
+next sample once a measurement has been read out (its four spectral blocks and its colorimetric values), so a
+``MEAS,1`` that failed, or one whose data were not read completely, is measured again on the same sample: a retried
+or a resumed reading measures the sample it is meant for, as on the real instrument.
 
 Transports
 ----------
@@ -115,6 +124,7 @@ FAULT_KINDS = (
     "no_completion",
     "calculation_error",
     "late_completion",
+    "colorimetry",
 )
 """Injectable faults; see :class:`Fault`."""
 
@@ -144,7 +154,8 @@ class Fault:
         ``garbage`` (``garbage`` bytes before the reply), ``disconnect`` (send ``fraction`` of the reply, then drop
         the link), ``busy`` (answer ER02), ``no_data`` (answer ER20), ``error`` (answer ``code``), ``over_range``
         (answer ER10), ``no_completion`` (MEAS,1: no completion line), ``calculation_error`` (MEAS,1: sentinel
-        values), ``late_completion`` (MEAS,0: a stray ``OK00`` ``seconds`` after the reply).
+        values), ``late_completion`` (MEAS,0: a stray ``OK00`` ``seconds`` after the reply), ``colorimetry``
+        (MEDR,2: ``values`` sent instead of the measurement's).
     command : str
         ``"*"`` (any command), a mnemonic (``"MEDR"``), or a whole command (``"MEDR,1,1,2"``; numeric parameters
         compare as numbers).
@@ -162,6 +173,9 @@ class Fault:
         The error code of an ``error`` fault.
     fraction : float
         Part of the reply sent before a ``disconnect`` (0-1).
+    values : mapping of str to float
+        For ``colorimetry``: colorimetric quantity name (:data:`~instruments.cs2000.protocol.COLORIMETRIC_NAMES`)
+        -> the value sent instead (units there).
     """
 
     kind: str
@@ -173,6 +187,7 @@ class Fault:
     garbage: bytes = b"\x00\xfe~#"
     code: str = "ER10"
     fraction: float = 0.5
+    values: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
@@ -194,6 +209,12 @@ class Fault:
             raise ValueError("fault seconds must be >= 0, chunk_size >= 1 and fraction within 0-1")
         if self.kind == "error":
             format_reply(self.code)  # raises ValueError for a bad code
+        if self.kind == "colorimetry" and self.command.split(",")[0] not in ("*", "MEDR"):
+            raise ValueError(f"a colorimetry fault applies to MEDR, not {self.command!r}")
+        unknown = sorted(set(self.values) - set(COLORIMETRIC_NAMES))
+        if unknown or not all(isinstance(v, int | float) and math.isfinite(v) for v in self.values.values()):
+            raise ValueError(f"fault values must map colorimetric names ({', '.join(COLORIMETRIC_NAMES)}) to finite "
+                             f"numbers; got {dict(self.values)!r}")  # fmt: skip
 
     @classmethod
     def from_table(cls, table: Mapping[str, object]) -> Fault:
@@ -400,10 +421,11 @@ _INSTRUMENT_KEYS = {"model", "serial", "firmware"}
 def load_script(path: str | os.PathLike[str]) -> dict[str, object]:
     """Read a samples script (TOML) into :class:`Emulator` keyword arguments.
 
-    ``[samples]``: ``file`` (reflectance CSV, relative to the script), ``sequence`` (the sample under the
-    instrument at each successive MEAS,1; the last stays), ``illuminant``, ``gain``, ``noise``, ``seed``,
-    ``time_scale``. ``[instrument]`` (optional): ``model``, ``serial``, ``firmware``. ``[[faults]]`` or
-    ``[faults.NAME]`` tables: :class:`Fault` fields. A ``.csv`` path is read as the reflectance file alone.
+    ``[samples]``: ``file`` (reflectance CSV, relative to the script), ``sequence`` (the samples put under the
+    instrument in turn, the next after each measurement read out; the last stays), ``illuminant``, ``gain``,
+    ``noise``, ``seed``, ``time_scale``. ``[instrument]`` (optional): ``model``, ``serial``, ``firmware``.
+    ``[[faults]]`` or ``[faults.NAME]`` tables: :class:`Fault` fields. A ``.csv`` path is read as the reflectance
+    file alone.
 
     Raises
     ------
@@ -526,6 +548,7 @@ class _Data:
 
     measurement: Measurement
     blocks_read: set[int] = field(default_factory=set)
+    colorimetry_read: bool = False
 
 
 @dataclass
@@ -557,8 +580,10 @@ class Emulator:
     samples : mapping of str to array, optional
         Reflectance (fraction) of each sample at 380-780 nm, 1 nm (401 values). Default: ``{"white": 0.98}``.
     sequence : sequence of str
-        The sample under the instrument at each successive ``MEAS,1``; the last one stays. Default: the first
-        sample throughout. Setting :attr:`under_instrument` discards what is left of it.
+        The samples put under the instrument in turn: the next one once a measurement has been read out (its
+        four spectral blocks and its colorimetric values), so a failed or unread measurement is repeated on the
+        same sample; the last one stays. Default: the first sample throughout. Setting :attr:`under_instrument`
+        discards what is left of it.
     illuminant : str or array
         A CIE illuminant name (:func:`illuminant_spd`) or 401 relative spectral powers.
     gain : float
@@ -633,8 +658,9 @@ class Emulator:
         self.faults = list(faults)
         self._fault_counts = [0] * len(self.faults)
         self._rng = np.random.default_rng(seed)
-        self._sequence = deque(sequence)
-        self._under = self._sequence[0] if self._sequence else next(iter(self._samples))
+        self._sequence = deque(sequence[1:])  # the samples still to come, after the one under the instrument
+        self._under = sequence[0] if sequence else next(iter(self._samples))
+        self._moved_on = False  # the last measurement was read out: the next MEAS,1 measures the next sample
         self._lock = threading.Lock()
         self._measurements: list[Measurement] = []
         self._use_pty = pty or link is not None
@@ -662,6 +688,7 @@ class Emulator:
         self._data: _Data | None = None
         self._pending: _Pending | None = None
         self._late_until = 0.0  # monotonic time until which a no_completion measurement is still "measuring"
+        self._colorimetry_fault: dict[str, float] = {}  # values a colorimetry fault replaces in the current reply
 
     # --------------------------------------------------------------------------------------------- public API
 
@@ -708,6 +735,7 @@ class Emulator:
         with self._lock:
             self._under = name
             self._sequence.clear()
+            self._moved_on = False
 
     @property
     def measurements(self) -> list[Measurement]:
@@ -922,6 +950,7 @@ class Emulator:
             return
         fired = self._fired(mnemonic, params)
         wire = [f for f in fired if f.kind in _WIRE_KINDS and f.at == "reply"]
+        self._colorimetry_fault = {k: v for f in fired if f.kind == "colorimetry" for k, v in f.values.items()}
         meas = _meas_parameter(mnemonic, params)
         starts = meas == 1 and self._pending is None and self._remote and not self._late()
         replacement = next((f for f in fired if f.kind in _REPLY_ERRORS and f.at == "reply"), None)
@@ -1090,23 +1119,33 @@ class Emulator:
             else:
                 texts = [sentinel_text(fmt, firmware_1_01=old_firmware)] * values.size
             self._data.blocks_read.add(block)
+            self._note_read_out(self._data)
             if self._button_enabled and self._data.blocks_read >= set(SPECTRAL_BLOCKS):
                 self._data = None
             return "OK00", tuple(texts)
-        colorimetric = measurement.colorimetric
+        colorimetric = measurement.colorimetric | self._colorimetry_fault
         texts = [
             format_colorimetric(n, colorimetric[n], fmt, firmware_1_01=old_firmware) for n in COLORIMETRIC_BLOCKS[block]
         ]
+        self._data.colorimetry_read = True
+        self._note_read_out(self._data)
         if self._button_enabled:
             self._data = None
         return "OK00", tuple(texts)
+
+    def _note_read_out(self, data: _Data) -> None:
+        """The operator moves on once a measurement's four spectral blocks and its colorimetric values were read."""
+        if data.colorimetry_read and data.blocks_read >= set(SPECTRAL_BLOCKS):
+            with self._lock:
+                self._moved_on = True
 
     # ------------------------------------------------------------------------------------------ measuring
 
     def _start_measurement(self, link: _Link, terminator: bytes, fired: list[Fault]) -> None:
         with self._lock:
-            if self._sequence:
+            if self._moved_on and self._sequence:
                 self._under = self._sequence.popleft()
+            self._moved_on = False
             sample = self._under
         radiance = self._spd * self._samples[sample] * self.gain
         if self.noise:

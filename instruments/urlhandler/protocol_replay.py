@@ -44,7 +44,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from instruments.session_log import LogConnection, LogEvent, SessionLogError, read_session_log
 
-__all__ = ["ReplayMismatch", "ReplayWarning", "Serial"]
+__all__ = ["ReplayMismatch", "ReplayWarning", "Serial", "parse_url"]
 
 _URL_FORM = '"replay://PATH[?timing=fast|real][&strict=1|0][&connection=N]"'
 _BOOLEANS = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
@@ -56,6 +56,35 @@ class ReplayMismatch(SerialException):
 
 class ReplayWarning(UserWarning):
     """A mismatch that a non-strict replay went on after."""
+
+
+def parse_url(url: str) -> tuple[str, str, bool, int | None]:
+    """The parts of a ``replay://`` URL: the log's path, ``timing``, ``strict`` and ``connection`` (None: all).
+
+    Raises
+    ------
+    serial.SerialException
+        Another scheme, no path, a ``#`` in the path, or an unknown option or value.
+    """
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme.lower() != "replay":
+        raise SerialException(f"expected {_URL_FORM}, got {url!r}")
+    if parts.fragment:
+        raise SerialException(f"{url!r}: a '#' in the path must be written %23")
+    path = urllib.parse.unquote(parts.netloc + parts.path)
+    if not path:
+        raise SerialException(f"{url!r} names no file; expected {_URL_FORM}")
+    timing, strict, selected = "fast", True, None
+    for key, value in urllib.parse.parse_qsl(parts.query, keep_blank_values=True):
+        if key == "timing" and value in ("fast", "real"):
+            timing = value
+        elif key == "strict" and value.lower() in _BOOLEANS:
+            strict = _BOOLEANS[value.lower()]
+        elif key == "connection" and value.isdigit():
+            selected = int(value)
+        else:
+            raise SerialException(f"{url!r}: bad option {key}={value!r}; expected {_URL_FORM}")
+    return path, timing, strict, selected
 
 
 class _Cursor:
@@ -178,24 +207,7 @@ class Serial(SerialBase):
 
     def _load(self, url: str) -> None:
         """Parse ``url`` and read its session log."""
-        parts = urllib.parse.urlsplit(url)
-        if parts.scheme.lower() != "replay":
-            raise SerialException(f"expected {_URL_FORM}, got {url!r}")
-        if parts.fragment:
-            raise SerialException(f"{url!r}: a '#' in the path must be written %23")
-        path = urllib.parse.unquote(parts.netloc + parts.path)
-        if not path:
-            raise SerialException(f"{url!r} names no file; expected {_URL_FORM}")
-        timing, strict, selected = "fast", True, None
-        for key, value in urllib.parse.parse_qsl(parts.query, keep_blank_values=True):
-            if key == "timing" and value in ("fast", "real"):
-                timing = value
-            elif key == "strict" and value.lower() in _BOOLEANS:
-                strict = _BOOLEANS[value.lower()]
-            elif key == "connection" and value.isdigit():
-                selected = int(value)
-            else:
-                raise SerialException(f"{url!r}: bad option {key}={value!r}; expected {_URL_FORM}")
+        path, timing, strict, selected = parse_url(url)
         try:
             connections = read_session_log(path)
         except OSError as err:
@@ -332,8 +344,9 @@ class Serial(SerialBase):
     def _silence(self, cursor: _Cursor, event: LogEvent | None) -> bytes:
         """A read that the recording has nothing for at this point: a timeout, or the end of the device."""
         line = cursor.next_tx_line()
-        if line is not None:
-            self._virtual = max(self._virtual, cursor.tx[cursor.tx_i].t)
+        if line is not None:  # to the next recorded write; already there (a log out of order): the timeout passes
+            written = cursor.tx[cursor.tx_i].t
+            self._virtual = written if written > self._virtual else self._virtual + max(self._timeout or 0.0, 1e-3)
         if line is None:
             raise SerialException(f"disconnected: the recording {self._path} (connection at line "
                                   f"{cursor.connection.line}) ends here, and the driver reads on")

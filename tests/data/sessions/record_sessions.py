@@ -33,6 +33,7 @@ import shutil
 import sys
 import tempfile
 import time
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 sys.path.insert(0, str(ROOT))  # run as a script: import kmpipe and instruments from this checkout
 
-from instruments.cs2000.emulator import Emulator, Fault  # noqa: E402
+from instruments.cs2000.emulator import Emulator, Fault, Measurement  # noqa: E402
 from kmpipe.cli import main  # noqa: E402
 from kmpipe.spectra import read_spectra_csv  # noqa: E402
 
@@ -132,7 +133,7 @@ def record(name: str, scenario: Scenario) -> None:
             argv = ["measure", str(PLAN), "--port", emulator.port, "--record", str(new_log), "-o", str(folder)]
             with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):  # progress lines
                 status = main([*argv, "--unattended"])
-            truth = [m.radiance for m in emulator.measurements]
+            truth = emulator.measurements
         seconds = time.monotonic() - started
         message = stderr.getvalue().replace(str(folder), "{folder}")
         check(name, scenario, status, folder, truth, message)
@@ -150,8 +151,9 @@ def record(name: str, scenario: Scenario) -> None:
     print(f"{name}: exit {status}, {scenario.saved} readings, {seconds:.1f} s, {size / 1024:.0f} KiB ({scenario.note})")
 
 
-def check(name: str, scenario: Scenario, status: int, folder: Path, truth: list[np.ndarray], message: str) -> None:
+def check(name: str, scenario: Scenario, status: int, folder: Path, truth: list[Measurement], message: str) -> None:
     """Raise SystemExit unless the run had the scenario's outcome."""
+    sequence = tomllib.loads(SCRIPT.read_text(encoding="utf-8"))["samples"]["sequence"]
     problems = []
     if status != scenario.exit_status:
         problems.append(f"exit status {status}, expected {scenario.exit_status}: {message.strip()}")
@@ -164,12 +166,16 @@ def check(name: str, scenario: Scenario, status: int, folder: Path, truth: list[
     table = read_spectra_csv(folder / "radiance.csv")
     if tuple(table.columns) != tuple(columns):
         problems.append(f"radiance.csv columns {table.columns} differ from session.json's {columns}")
-    # every saved reading is one of the emulator's measurements, in order (a retried reading is measured again)
+    # every saved reading is one of the emulator's measurements, in order (a retried reading is measured again),
+    # of the sample the plan names for it (the script's sequence follows the plan's positions)
     measured = iter(truth)
-    for column in columns:
+    for column, sample in zip(columns, sequence, strict=False):
         values = np.asarray(table.column(column), dtype=np.float64)
-        if not any(np.array_equal(values, m) for m in measured):
+        match = next((m for m in measured if np.array_equal(values, m.radiance)), None)
+        if match is None:
             problems.append(f"radiance of {column} is not one of the emulator's measurements (in order)")
+        elif match.sample != sample:
+            problems.append(f"{column} measured sample {match.sample}, not {sample}")
     completed = (folder / "manifest.toml").exists()
     if completed != (scenario.exit_status == 0):
         problems.append(f"manifest.toml {'written' if completed else 'missing'} with exit status {status}")
