@@ -27,7 +27,7 @@ from kmpipe.errors import InputError
 from kmpipe.flags import Flag
 from kmpipe.inversion import Inversion, black_white, two_constant
 from kmpipe.joint_fit import fit_joint, predict_readings, standard_errors
-from kmpipe.material import Material, MeasurementFit
+from kmpipe.material import MAX_COEFFICIENT_PER_MM, Material, MeasurementFit
 from kmpipe.sample import Sample, file_sha256
 from kmpipe.saunderson import saunderson_inverse
 
@@ -178,6 +178,11 @@ def fit_sample(
         raise InputError(f"unknown method {method!r}; expected one of two-constant, black-white, lsq", field="--method")
 
     flags = np.where(above_one, flags | np.uint8(Flag.OUT_OF_RANGE), flags)
+    # Coefficients beyond what a material file holds (films of nanometres, readings at the model's edge): capped and
+    # flagged, so that the material says so instead of failing to be written.
+    beyond = (K > MAX_COEFFICIENT_PER_MM) | (S > MAX_COEFFICIENT_PER_MM)
+    K, S = np.minimum(K, MAX_COEFFICIENT_PER_MM), np.minimum(S, MAX_COEFFICIENT_PER_MM)
+    flags = np.where(beyond, flags | np.uint8(Flag.OUT_OF_RANGE), flags)
     predicted = predict_readings(K, S, thickness, G_km, saunderson)
     residuals = predicted - sample.readings
     K_se, S_se, sigma = standard_errors(K, S, thickness, G_km, readings, saunderson, noise)

@@ -14,10 +14,14 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import json
 import os
 import re
 import shutil
+import struct
 import tempfile
+import warnings
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -64,12 +68,16 @@ def snapshot(folder: Path, skip: Path) -> dict[str, tuple]:
 
 
 def run_cli(argv: list) -> tuple[int, str, str]:
+    """Exit status, stdout and stderr of ``kmpipe ARGV``; a numpy RuntimeWarning (printed on a user's stderr) fails."""
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", RuntimeWarning)
         try:
             status = main([str(a) for a in argv])
         except SystemExit as exit_:  # argparse
             status = exit_.code
+    noise = [w for w in seen if issubclass(w.category, RuntimeWarning)]
+    assert not noise, f"a RuntimeWarning reached the user: {noise[0].filename}:{noise[0].lineno}: {noise[0].message}"
     return status, out.getvalue(), err.getvalue()
 
 
@@ -399,3 +407,94 @@ def test_output_options_are_checked(material, tmp_path, command, case):
     assert "Traceback" not in err
     assert out.name in err or out.parent.name in err
     assert snapshot(tmp_path, tmp_path / "never") == before
+
+
+# ------------------------------------------------------------------------------ the audit's cases, by name ---
+
+
+def test_ingest_never_writes_over_its_dark_or_certified_file(tmp_path):
+    copy_sample(tmp_path)
+    certified = tmp_path / "certified.csv"
+    certified.write_text("# kmpipe-spectra: 1\n# quantity: reflectance\n# units: 1\nwavelength_nm,baso4\n"
+                         + "".join(f"{w},0.97\n" for w in range(380, 781)))  # fmt: skip
+    for output, extra in ((tmp_path / "white.csv", ["--dark", f"{tmp_path / 'white.csv'}:dark"]),
+                          (certified, ["--certified", f"{certified}:baso4"]),
+                          (certified, ["--certified", str(certified)])):  # fmt: skip
+        before = snapshot(tmp_path, tmp_path / "never")
+        argv = ["ingest", tmp_path / "F1.csv", "--white", f"{tmp_path / 'backings.csv'}:white", *extra, "-o", output]
+        status, _, err = run_cli(argv)
+        assert status == 2 and "never writes over its inputs" in err and output.name in err, err
+        assert snapshot(tmp_path, tmp_path / "never") == before
+
+
+def test_card_keeps_an_edited_layout_beside_it(tmp_path):
+    card = tmp_path / "X.png"
+    assert run_cli(["card", "-o", card])[0] == 0
+    layout = tmp_path / "X.layout.toml"
+    assert run_cli(["card", "-o", card])[0] == 0  # the built-in layout, unchanged: written again, the same
+    edited = layout.read_text().replace("[card]", "# tuned for our printer\n[card]", 1)
+    layout.write_text(edited)
+    status, _, err = run_cli(["card", "-o", card])
+    assert status == 2 and "X.layout.toml" in err and "--layout" in err
+    assert layout.read_text() == edited
+    assert run_cli(["card", "--layout", layout, "-o", card])[0] == 0  # drawn from the edited layout
+    assert layout.read_text() == edited
+
+
+def test_fit_refuses_sample_names_that_leave_the_output_folder(tmp_path):
+    for name in ("../../x", "/tmp/x", ".."):
+        work = tmp_path / name.strip("./").replace("/", "_") if name != ".." else tmp_path / "dots"
+        work.mkdir()
+        copy_sample(work)
+        text = (work / "manifest.toml").read_text().replace('name = "F1"', f"name = {json.dumps(name)}")
+        (work / "manifest.toml").write_text(text)
+        shutil.copy(work / "manifest.toml", work / "second.toml")
+        (work / "out").mkdir()
+        before = snapshot(tmp_path, work / "out")
+        status, _, err = run_cli(["fit", work / "manifest.toml", work / "second.toml", "-o", work / "out"])
+        assert status == 2 and "sample.name" in err and "manifest.toml" in err, err
+        assert snapshot(tmp_path, work / "out") == before and not any((work / "out").iterdir())
+
+
+def test_ingest_raw_refuses_a_name_that_leaves_the_output_folder(raw_card, tmp_path):
+    argv = ["ingest-raw", raw_card / "photo.dng", "--layout", raw_card / "layout.toml", "-o", tmp_path / "S",
+            "--thickness", "30 um", "--name", "../../x"]  # fmt: skip
+    status, _, err = run_cli(argv)
+    assert status == 2 and "--name" in err and not (tmp_path / "S").exists()
+
+
+def test_user_text_is_printed_as_it_is_not_as_markup(material, tmp_path):
+    """A line or product name holding rich markup ([/], [bold]) is shown literally; it crashed the table before."""
+    small_recipe(tmp_path, material)
+    text = (tmp_path / "recipe.toml").read_text()
+    text = text.replace('name = "Fuzz line"', 'name = "Line [/] [bold]x"').replace('name = "F1"', 'name = "F1 [red]"')
+    (tmp_path / "recipe.toml").write_text(text.replace('"Beige"', '"Beige [/]"'))
+    status, out, err = run_cli(["run", tmp_path / "recipe.toml", "-o", tmp_path / "out"])
+    assert status == 0, err
+    assert "Line [/] [bold]x" in out and "F1 [red]" in out
+
+
+def test_debug_adds_the_traceback_and_keeps_the_exit_status(tmp_path):
+    status, _, err = run_cli(["--debug", "fit", tmp_path / "missing.toml", "-o", tmp_path / "m.json"])
+    assert status == 2
+    assert "Traceback" in err and "InputError" in err and "missing.toml" in err
+
+
+def _png_header_only(path: Path, width: int, height: int) -> None:
+    """A PNG whose header says ``width`` x ``height`` (8-bit grey) and whose pixels are missing: a reader that
+    checks the header first refuses it at once; one that decodes first would allocate width x height bytes."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"")) +
+                     chunk(b"IEND", b""))  # fmt: skip
+
+
+def test_sheet_refuses_a_frame_too_large_from_its_header(tmp_path):
+    _png_header_only(tmp_path / "huge.png", 20000, 20000)
+    shutil.copy(GOLDEN / "compact_000.exr", tmp_path / "a.exr")
+    status, _, err = run_cli(["sheet", tmp_path / "a.exr", tmp_path / "huge.png", "-o", tmp_path / "s.png"])
+    assert status == 2 and "huge.png" in err and "20000 x 20000" in err, err
+    assert not (tmp_path / "s.png").exists()
