@@ -395,6 +395,8 @@ def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
     for photo in args.photos:
         files.regular_file(photo, "RAW photo")
     files.regular_file(args.layout, "TOML", field="--layout")
+    for name in ("reflectance.csv", "manifest.toml"):
+        files.refuse_inputs(args.output / name, [*args.photos, args.layout])
     manifest = ingest_raw(
         args.photos,
         args.layout,

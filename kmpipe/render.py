@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from kmpipe import files
 from kmpipe.albedo_texture import basis_spectra, texture_weights
 from kmpipe.errors import InputError
 from kmpipe.optical_tables import Stack, exact_stack, parse_mode, working_space
@@ -440,11 +441,13 @@ def render_scene(
     )  # fmt: skip
     variants = [(out_dir, blur)]
     if ab_scattering:
-        variants.append((out_dir / "no_sss", None))
-        (out_dir / "no_sss").mkdir(exist_ok=True)
+        variants.append((files.output_folder(files.within(out_dir, "no_sss"), field="--ab-sss"), None))
     written = []
     angles = scene.turntable_angles_deg()
     chosen = range(len(angles)) if frames is None else list(frames)
+    outputs = [folder / f"frame_{i:03d}.{ext}" for folder, _ in variants for i in chosen for ext in ("exr", "png")]
+    for output in [*outputs, *([out_dir / "ab_sss.png"] if ab_scattering else [])]:
+        files.refuse_inputs(output, scene.inputs, field="-o")
     for done, i in enumerate(chosen):
         angle = angles[i]
         common = {

@@ -261,6 +261,7 @@ class Scene:
     albedo: np.ndarray | None
     mesh: trimesh.Trimesh
     model: np.ndarray
+    inputs: tuple[Path, ...] = ()  # every file the scene reads: the scene, materials, maps, textures, mesh, CSVs
 
     @property
     def name(self) -> str:
@@ -424,7 +425,21 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
     albedo = None
     if info.base.albedo_texture is not None:
         albedo = _albedo(info.base, base, where((key, "albedo_texture")))
-    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, albedo, mesh, model)
+    return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, albedo, mesh, model,
+                 _inputs(info, path, base))  # fmt: skip
+
+
+def _inputs(info: SceneFile, path: Path, base: Path) -> tuple[Path, ...]:
+    """The files a checked scene reads (so that no output is written over one of them)."""
+    found = [path, *(base / layer.material for layer in info.layer)]
+    found += [base / layer.thickness_map.file for layer in info.layer if layer.thickness_map is not None]
+    if info.scene.mesh not in BUILTIN_MESHES:
+        found.append(base / info.scene.mesh)
+    if info.base.albedo_texture is not None:
+        found.append(base / info.base.albedo_texture)
+    if isinstance(info.base.reflectance, str) and not info.base.reflectance.startswith("colorchecker:"):
+        found.append(base / info.base.reflectance.partition(":")[0])
+    return tuple(found)
 
 
 def _check_mode(settings: RenderSettings, n_wavelengths: int, where: dict) -> None:

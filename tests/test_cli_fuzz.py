@@ -498,3 +498,18 @@ def test_sheet_refuses_a_frame_too_large_from_its_header(tmp_path):
     status, _, err = run_cli(["sheet", tmp_path / "a.exr", tmp_path / "huge.png", "-o", tmp_path / "s.png"])
     assert status == 2 and "huge.png" in err and "20000 x 20000" in err, err
     assert not (tmp_path / "s.png").exists()
+
+
+def test_render_never_writes_over_a_file_its_scene_reads(material, tmp_path):
+    """A thickness map named like a frame, in the output folder: refused before any frame is written."""
+    small_scene(tmp_path, material)
+    from renderer.image_io import write_png
+
+    write_png(tmp_path / "frame_000.png", np.full((8, 8, 3), 0.5))
+    text = (tmp_path / "scene.toml").read_text().replace(
+        'thickness = "40 um"', 'thickness_map = { file = "frame_000.png", max = "40 um" }')
+    (tmp_path / "scene.toml").write_text(text.replace('mesh = "compact"', 'mesh = "card"'))
+    before = snapshot(tmp_path, tmp_path / "never")
+    status, _, err = run_cli(["render", tmp_path / "scene.toml", "-o", tmp_path])
+    assert status == 2 and "frame_000.png" in err and "never writes over its inputs" in err, err
+    assert snapshot(tmp_path, tmp_path / "never") == before
