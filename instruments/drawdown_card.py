@@ -27,7 +27,6 @@ import math
 import os
 import re
 import secrets
-import stat
 import struct
 import tomllib
 import zlib
@@ -39,6 +38,8 @@ from typing import IO, Any
 
 import cv2
 import numpy as np
+
+from instruments.regular_files import NotReadable, read_regular
 
 ROLES = ("backing", "film", "white_reference", "colorchecker")
 """Region roles: labels for the caller, not interpreted here."""
@@ -335,13 +336,10 @@ def load_layout(path: str | os.PathLike) -> Layout:
 
 def _read_layout_text(path: Path) -> str:
     """The text of a layout file: a regular file (never a device or a FIFO) of at most MAX_LAYOUT_BYTES bytes."""
-    if not stat.S_ISREG(os.stat(path).st_mode):
-        raise LayoutError(f"{path}: not a regular file; expected a layout TOML file")
-    with open(path, "rb") as handle:
-        data = handle.read(MAX_LAYOUT_BYTES + 1)
-    if len(data) > MAX_LAYOUT_BYTES:
-        raise LayoutError(f"{path}: larger than {MAX_LAYOUT_BYTES >> 20} MiB, the limit for a layout file")
-    return data.decode("utf-8-sig")
+    try:
+        return read_regular(path, MAX_LAYOUT_BYTES).decode("utf-8-sig")
+    except NotReadable as error:
+        raise LayoutError(f"{error}; expected a layout TOML file") from None
 
 
 def _layout_from_dict(data: dict[str, Any]) -> Layout:

@@ -513,3 +513,24 @@ def test_render_never_writes_over_a_file_its_scene_reads(material, tmp_path):
     status, _, err = run_cli(["render", tmp_path / "scene.toml", "-o", tmp_path])
     assert status == 2 and "frame_000.png" in err and "never writes over its inputs" in err, err
     assert snapshot(tmp_path, tmp_path / "never") == before
+
+
+@FUZZ
+@given(target=st.sampled_from(["emulator.toml", "emulator_reflectance.csv"]), breakage=breakages)
+def test_emulate_on_broken_scripts(target, breakage):
+    """A broken samples script or reflectance file: the emulator's loader says so (ScriptError), and ``kmpipe
+    emulate`` exits 2 naming the file before it listens; a script still valid loads (it would serve forever)."""
+    from instruments.cs2000.emulator import Emulator, ScriptError
+
+    def setup(work: Path) -> None:
+        for name in ("emulator.toml", "emulator_reflectance.csv"):
+            shutil.copy(SAMPLE / name, work / name)
+
+    with workspace(setup) as work:
+        breakage.apply(work / target)
+        try:
+            Emulator.from_script(work / "emulator.toml")
+        except ScriptError:
+            argv = ["emulate", "--samples", work / "emulator.toml", "--link", work / "out" / "cs2000"]
+            status, _ = assert_well_behaved(argv, work, work / "out", work / target)
+            assert status == 2

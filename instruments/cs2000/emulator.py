@@ -97,6 +97,10 @@ from instruments.cs2000.protocol import (
     parse_command,
     sentinel_text,
 )
+from instruments.regular_files import read_regular
+
+#: Largest samples script or reflectance CSV the emulator reads (bytes).
+MAX_FILE_BYTES = 64 << 20
 
 __all__ = [
     "FAULT_KINDS",
@@ -378,8 +382,8 @@ def read_reflectance_csv(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as error:
+        text = read_regular(path, MAX_FILE_BYTES).decode("utf-8-sig")
+    except (OSError, ValueError) as error:  # ValueError: not a regular file, too large, not UTF-8
         raise ScriptError(f"{path}: cannot read the reflectance file ({error})") from None
     header: list[str] | None = None
     rows: list[list[float]] = []
@@ -436,8 +440,8 @@ def load_script(path: str | os.PathLike[str]) -> dict[str, object]:
     if path.suffix.lower() == ".csv":
         return {"samples": read_reflectance_csv(path)}
     try:
-        script = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
+        script = tomllib.loads(read_regular(path, MAX_FILE_BYTES).decode("utf-8"))
+    except (OSError, ValueError, RecursionError) as error:  # ValueError: not regular, too large, not UTF-8 or TOML
         raise ScriptError(f"{path}: cannot read the samples script ({error})") from None
     unknown = sorted(set(script) - {"samples", "instrument", "faults"})
     if unknown:
@@ -446,13 +450,18 @@ def load_script(path: str | os.PathLike[str]) -> dict[str, object]:
     if not isinstance(samples, dict) or "file" not in samples:
         raise ScriptError(f"{path}: missing [samples] table with a 'file' key")
     instrument = script.get("instrument", {})
+    if not isinstance(samples["file"], str) or not isinstance(instrument, dict):
+        raise ScriptError(f"{path}: [samples] file is the name of a reflectance CSV (text), and [instrument] a table")
     for table, name, known in ((samples, "samples", _SAMPLES_KEYS), (instrument, "instrument", _INSTRUMENT_KEYS)):
         extra = sorted(set(table) - known)
         if extra:
             raise ScriptError(
                 f"{path}: [{name}] unknown key(s) {', '.join(extra)}; expected {', '.join(sorted(known))}"
             )
-    kwargs: dict[str, object] = {"samples": read_reflectance_csv(path.parent / samples["file"])}
+    try:
+        kwargs: dict[str, object] = {"samples": read_reflectance_csv(path.parent / samples["file"])}
+    except ScriptError as error:  # name the script that names the file, too
+        raise ScriptError(f"{path}: [samples] file: {error}") from None
     kwargs |= {
         key: samples[key] for key in ("sequence", "illuminant", "gain", "noise", "seed", "time_scale") if key in samples
     }
@@ -465,7 +474,7 @@ def load_script(path: str | os.PathLike[str]) -> dict[str, object]:
             if not isinstance(table, dict):
                 raise ValueError("expected a table")
             faults.append(Fault.from_table(table))
-        except (TypeError, ValueError) as error:
+        except (TypeError, ValueError, LookupError, OverflowError) as error:
             raise ScriptError(f"{path}: fault {name}: {error}") from None
     kwargs["faults"] = faults
     return kwargs
@@ -802,7 +811,7 @@ class Emulator:
         kwargs = load_script(path) | overrides
         try:
             return cls(**kwargs)  # type: ignore[arg-type]
-        except (TypeError, ValueError) as error:
+        except (TypeError, ValueError, LookupError, OverflowError) as error:  # a value of the wrong type or range
             raise ScriptError(f"{path}: {error}") from None
 
     # ------------------------------------------------------------------------------------------ transports
