@@ -309,7 +309,7 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
         index = write_index([(report_to_dict(report), page) for report, page in entries], out_dir)
         console.print(f"index of {len(entries)} reports: {index}", highlight=False, markup=False)
     if broken:
-        errors = Console(stderr=True)
+        errors = Console(stderr=True, emoji=False)
         for _, err in broken:
             errors.print(f"[bold red]kmpipe validate: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
         return EXIT_BAD_INPUT
@@ -561,7 +561,7 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     if summary.reports is not None:
         console.print(f"validation reports: {summary.reports}", highlight=False, markup=False, soft_wrap=True)
     if summary.failed:
-        errors = Console(stderr=True)
+        errors = Console(stderr=True, emoji=False)
         for line in summary.failed:
             errors.print(f"[bold red]kmpipe run: error:[/] {escape(line)}", highlight=False, soft_wrap=True)
         return EXIT_BAD_INPUT
@@ -777,8 +777,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    console = Console()
-    errors = Console(stderr=True)
+    console = Console(emoji=False)  # user text: ":x:" is not an emoji
+    errors = Console(stderr=True, emoji=False)
     try:
         return args.run(args, console)
     except InputError as err:

@@ -103,8 +103,10 @@ def _roi_region(text: str) -> Region:
     return Region(name=name, role="", x_mm=x, y_mm=y, w_mm=w, h_mm=h)
 
 
-def _measure_photo(photo: Path, layout: Layout, rois: list[Region]) -> PhotoRegions:
-    """Trimmed means of every region of one photo, corrected for the light's fall-off across the card."""
+def _measure_photo(photo: Path, layout: Layout, rois: list[Region], layout_path: Path) -> PhotoRegions:
+    """Trimmed means of every region of one photo, corrected for the light's fall-off across the card.
+
+    A region's problem names the photo and the layout that places the region (either may be at fault)."""
     try:
         raw = read_raw(photo)
     except RawPhotoError as err:
@@ -123,12 +125,13 @@ def _measure_photo(photo: Path, layout: Layout, rois: list[Region]) -> PhotoRegi
     for region in rois or layout.regions:
         if region.role == "colorchecker":
             continue
+        where = f"{layout_path.name} places it; check the photo and the layout"
         try:
             sample = (
                 sample_region(raw.rgb, location, region, mask=raw.saturated) if location else _sample_roi(raw, region)
             )
         except ValueError as err:
-            raise InputError(str(err), path=photo) from None
+            raise InputError(f"{err} ({where})", path=photo) from None
         if sample.masked_fraction > MAX_CLIPPED:
             raise InputError(
                 f"region {region.name!r} is clipped in {sample.masked_fraction:.1%} of its pixels: lower the exposure",
@@ -138,7 +141,8 @@ def _measure_photo(photo: Path, layout: Layout, rois: list[Region]) -> PhotoRegi
         if np.max(sample.uniformity) > MAX_NONUNIFORMITY or variation > MAX_VARIATION:
             raise InputError(
                 f"region {region.name!r} is uneven (quadrants differ by {np.max(sample.uniformity):.0%}, pixels vary "
-                f"by {variation:.0%}): a specular highlight (are the polarizers crossed?), uneven light or film",
+                f"by {variation:.0%}): a specular highlight (are the polarizers crossed?), uneven light or film, or "
+                f"a region off its patch ({where})",
                 path=photo,
             )
         value = np.asarray(sample.mean, dtype=np.float64)
@@ -198,7 +202,7 @@ def ingest_raw(
             Region(**{**vars(by_name[r.name]), **{k: getattr(r, k) for k in ("x_mm", "y_mm", "w_mm", "h_mm")}})
             for r in roi_regions
         ]
-    measured = [_measure_photo(photo, layout, roi_regions) for photo in photos]
+    measured = [_measure_photo(photo, layout, roi_regions, Path(layout_path)) for photo in photos]
     white = [r for r in layout.regions if r.role == "white_reference"]
     if not white:
         raise InputError('has no region with role = "white_reference" to normalize by', path=layout_path)

@@ -558,7 +558,7 @@ def run_session(
     replayed log (``replay://LOG``) and a log ``--record`` appends to must have been recorded for this plan, and a
     resumed session must follow it and be undamaged (InputError otherwise, exit status 2).
     """
-    console = console or Console()
+    console = console or Console(emoji=False)
     plan = load_plan(plan_path)
     meta = {"sample": plan.sample.name, "plan_sha256": plan_digest(plan_path)}
     folder = out_dir or plan_path.parent / plan.sample.name

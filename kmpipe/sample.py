@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from kmpipe.errors import InputError
+from kmpipe.files import regular_file
 from kmpipe.manifest import FitSettings, Manifest, field_line, load_manifest, parse_grid
 from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
 from kmpipe.white import ReadingSource, certified_reflectance, radiance_to_reflectance
@@ -94,14 +95,18 @@ class _Tables:
     def get(self, ref, field: str) -> tuple[SpectralTable, Path]:
         path = (self.base / ref.file).resolve()
         if path not in self.cache:
-            if not path.is_file():
-                raise InputError(
-                    f"names the file {ref.file!r}, which does not exist (looked for {path})",
-                    path=self.manifest_path,
-                    line=field_line(self.manifest_path, field + ".file"),
-                    field=field + ".file",
-                )
-            table = read_spectra_csv(path)
+            line = field_line(self.manifest_path, field + ".file")
+            try:
+                regular_file(path, "spectral CSV")
+            except InputError as err:
+                raise InputError(f"names the file {ref.file!r}, which {err.message} (looked for {path})",
+                                 path=self.manifest_path, line=line, field=field + ".file") from None  # fmt: skip
+            try:
+                table = read_spectra_csv(path)
+            except InputError as err:  # say which manifest named the file, too
+                where = f"{self.manifest_path}" + (f", line {line}" if line else "") + f", field '{field}.file'"
+                raise InputError(f"{err.message} (the file named in {where})", path=err.path, line=err.line,
+                                 field=err.field) from None  # fmt: skip
             if table.quantity != self.quantity:
                 why = "the manifest has a [white] reference" if self.quantity == "radiance" else "there is no [white]"
                 raise InputError(

@@ -534,3 +534,14 @@ def test_emulate_on_broken_scripts(target, breakage):
             argv = ["emulate", "--samples", work / "emulator.toml", "--link", work / "out" / "cs2000"]
             status, _ = assert_well_behaved(argv, work, work / "out", work / target)
             assert status == 2
+
+
+def test_a_csv_named_by_a_manifest_is_named_with_the_manifest_and_emoji_codes_stay_text(tmp_path):
+    """The broken file and the manifest that named it are both in the message; ':x:' in it is not an emoji."""
+    copy_sample(tmp_path)
+    (tmp_path / "odd.csv").write_text("root:x:0:0\n")
+    text = (tmp_path / "manifest.toml").read_text().replace('file = "F1.csv"', 'file = "odd.csv"', 1)
+    (tmp_path / "manifest.toml").write_text(text)
+    status, _, err = run_cli(["fit", tmp_path / "manifest.toml", "-o", tmp_path / "m.json"])
+    assert status == 2 and "odd.csv" in err and "manifest.toml" in err and "masstone" in err, err
+    assert "root:x:0:0" in err

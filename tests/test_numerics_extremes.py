@@ -16,7 +16,7 @@ import warnings
 import mp_reference as ref
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from kmpipe import inversion as inv
@@ -34,6 +34,8 @@ EDGES = (0.0, 1.0, 5e-324, 1e-310, 1e-308, 2e-308, 1e-300, 1e-16, 0.5, 1.0 - 1e-
 unit = st.one_of(st.floats(0.0, 1.0), st.sampled_from(EDGES))
 thickness = st.one_of(st.floats(1e-3, 10.0), st.sampled_from((5e-324, 1e-300, 1e-9, 1.0, 1e9, 1e300, 1.7e308)))
 SETTINGS = settings(max_examples=300, deadline=None)
+#: Real films are drawn and those that hide their backing (no contrast to invert) are filtered out, by design.
+REAL_FILMS = settings(SETTINGS, suppress_health_check=[HealthCheck.filter_too_much])
 
 
 def _no_warnings(fun, *args):
@@ -222,20 +224,20 @@ def _check_black_white(SX, q, X, Gb, Gw, fun, *args):
     _assert_recovers(float(res.S), exact[1], conds[1], w)
 
 
-@SETTINGS
+@REAL_FILMS
 @given(SX=optical, q=ks_ratio, X=film_thickness, Gd=dark, Gl=light, swap=st.booleans())
 def test_black_white_recovers_real_films(SX, q, X, Gd, Gl, swap):
     Gb, Gw = (Gl, Gd) if swap else (Gd, Gl)
     _check_black_white(SX, q, X, Gb, Gw, inv.black_white, Gb, Gw, X)
 
 
-@SETTINGS
+@REAL_FILMS
 @given(SX=optical, q=ks_ratio, X=film_thickness)
 def test_curtis_recovers_real_films(SX, q, X):
     _check_black_white(SX, q, X, 0.0, 1.0, inv.curtis, X)
 
 
-@SETTINGS
+@REAL_FILMS
 @given(SX=optical, q=ks_ratio, X=film_thickness, Rg=st.one_of(dark, light))
 def test_two_constant_recovers_real_films(SX, q, X, Rg):
     K, S = q * SX / X, SX / X
@@ -275,10 +277,12 @@ def test_forward_model_stays_in_unit_interval_without_warnings(K, S, X, Rg):
     for v in (R0, T, R, two, R_top, T_total, R_bottom, R_inf):
         assert np.isfinite(v) and 0.0 <= v <= 1.0, (K, S, X, Rg, v)
     assert R0 + T <= 1.0 + 4 * EPS
-    # against 50 digits: absolute, since every value lies in [0, 1]
+    # against 50 digits, relative to the value's condition; a subnormal thickness (below 2.2e-308) leaves
+    # intermediates with fewer significant bits, so there the floor is 1e-11 instead of 1e-13
     R0_ref, T_ref = ref.film(K, S, X)
+    floor = 1e-11 if 0.0 < X < np.finfo(float).tiny else 1e-13
     for got, exp, index in ((R0, R0_ref, 0), (T, T_ref, 1)):
-        rel = min(max(1e-13, 4 * EPS * float(ref.condition(ref.film, K, S, X, index=index))), 1.0)
+        rel = min(max(floor, 4 * EPS * float(ref.condition(ref.film, K, S, X, index=index))), 1.0)
         assert abs(float(got) - float(exp)) <= rel * float(exp) + 1e-300, (K, S, X, got)
 
 
