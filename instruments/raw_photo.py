@@ -302,7 +302,8 @@ def _camera_name(path: Path) -> str:
                     if length > 4:
                         file.seek(struct.unpack(order + "I", value)[0])
                         value = file.read(length)
-                    text[tag] = value[:length].split(b"\0")[0].decode("latin-1").strip()
+                    name = value[:length].split(b"\0")[0].decode("latin-1")
+                    text[tag] = "".join(c if c.isprintable() else "?" for c in name).strip()[:64]  # untrusted bytes
     except (OSError, struct.error):
         return ""
     make, model = text.get(_TIFF_MAKE, ""), text.get(_TIFF_MODEL, "")

@@ -520,7 +520,7 @@ def check_log(log: Path, plan_path: Path, meta: dict[str, str], field: str, cons
     if unchecked:
         console.print(f"[yellow]warning:[/] {escape(str(log))} does not record which sample and plan it measured "
                       f"(recorded by an older kmpipe): it cannot be checked to be a recording of "
-                      f"{escape(meta['sample'])}")  # fmt: skip
+                      f"{escape(meta['sample'])}", soft_wrap=True)  # fmt: skip
 
 
 def _check_outputs(folder: Path, record: Path | None, inputs: list[Path]) -> None:

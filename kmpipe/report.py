@@ -169,6 +169,7 @@ def draw_ks(report: SampleReport) -> Figure:
     ax = fig.subplots()
     positive = np.concatenate([v[(v > 0) & np.isfinite(v)] for v in (material.K, material.S)])
     floor = positive.min() / 10.0 if positive.size else 1e-3
+    ceiling = positive.max() * 100.0 if positive.size else 1e3  # a band above this is unbounded: drawn to here
     for name, values, stderr, colour in (
         ("K", material.K, material.K_stderr, "C3"),
         ("S", material.S, material.S_stderr, "C0"),
@@ -179,7 +180,7 @@ def draw_ks(report: SampleReport) -> Figure:
             ax.fill_between(
                 x,
                 np.maximum(values - np.where(known, stderr, 0.0), floor),
-                values + np.where(known, stderr, 0.0),
+                np.minimum(values + np.where(known, stderr, 0.0), ceiling),
                 where=known & (values > 0),
                 color=colour,
                 alpha=0.2,

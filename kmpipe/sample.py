@@ -27,6 +27,14 @@ DEFAULT_STEP_NM = 5.0
 MAX_REFLECTANCE = 1.5
 
 
+def named_in(err: InputError, manifest: Path, field: str, line: int | None) -> InputError:
+    """``err`` (about a file a manifest names) saying also which manifest, line and field named the file."""
+    where = f"{manifest}" + (f", line {line}" if line else "") + f", field '{field}'"
+    if str(manifest) in err.message:
+        return err
+    return InputError(f"{err.message} (the file named in {where})", path=err.path, line=err.line, field=err.field)
+
+
 @dataclass(frozen=True)
 class Measurement:
     """One measured column: a masstone (opaque layer) or a film of known thickness over a named backing."""
@@ -103,10 +111,8 @@ class _Tables:
                                  path=self.manifest_path, line=line, field=field + ".file") from None  # fmt: skip
             try:
                 table = read_spectra_csv(path)
-            except InputError as err:  # say which manifest named the file, too
-                where = f"{self.manifest_path}" + (f", line {line}" if line else "") + f", field '{field}.file'"
-                raise InputError(f"{err.message} (the file named in {where})", path=err.path, line=err.line,
-                                 field=err.field) from None  # fmt: skip
+            except InputError as err:
+                raise named_in(err, self.manifest_path, field + ".file", line) from None
             if table.quantity != self.quantity:
                 why = "the manifest has a [white] reference" if self.quantity == "radiance" else "there is no [white]"
                 raise InputError(
@@ -239,7 +245,9 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
         except InputError as err:
             if err.path is None:
                 err.path, err.field = manifest_path, "white.certified"
-            raise
+                raise
+            line = field_line(manifest_path, "white.certified")
+            raise named_in(err, manifest_path, "white.certified", line) from None
         # Check the white (and dark) reading on its own first, so that a refusal names the white's file.
         white_source = ReadingSource(
             path=white_path,

@@ -133,8 +133,8 @@ breakages = st.one_of(
     st.sampled_from([Breakage("fifo"), Breakage("devzero"), Breakage("folder"), Breakage("missing")]),
 )  # fmt: skip
 text_breakages = breakages.filter(lambda b: b.kind != "bytes")  # where random bytes say nothing new
-FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-FUZZ_SLOW = settings(FUZZ, max_examples=10)
+FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+FUZZ_SLOW = settings(FUZZ, max_examples=15)
 
 
 @contextlib.contextmanager
