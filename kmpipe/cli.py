@@ -281,6 +281,10 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
             broken.append((path, err))  # one unreadable material must not stop a product line's batch
             continue
         folder = out_dir / report.material.name if len(materials) > 1 or args.output is None else out_dir
+        inputs = [path, report.manifest_path, *(path.parent / i["path"] for i in report.material.provenance.get(
+            "inputs", []))]  # fmt: skip
+        for name in ("report.html", "validation.json"):
+            files.refuse_inputs(folder / name, inputs)
         entries.append((report, write_sample_report(report, folder)))
 
     table = Table(title="Validation", title_justify="left")

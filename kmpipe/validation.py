@@ -19,6 +19,7 @@ import numpy as np
 
 from kmpipe.colorimetry import delta_E_2000, reflectance_to_Lab
 from kmpipe.errors import InputError
+from kmpipe.files import is_regular
 from kmpipe.flags import Flag
 from kmpipe.joint_fit import predict_readings
 from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
@@ -548,7 +549,7 @@ def _changed_inputs(material: Material, material_path: Path) -> list[str]:
     changed = []
     for entry in material.provenance.get("inputs", []):
         path = material_path.parent / entry["path"]
-        if not path.is_file():
+        if not is_regular(path):
             changed.append(f"{entry['path']} (missing)")
         elif file_sha256(path) != entry["sha256"]:
             changed.append(entry["path"])

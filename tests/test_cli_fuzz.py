@@ -545,3 +545,15 @@ def test_a_csv_named_by_a_manifest_is_named_with_the_manifest_and_emoji_codes_st
     status, _, err = run_cli(["fit", tmp_path / "manifest.toml", "-o", tmp_path / "m.json"])
     assert status == 2 and "odd.csv" in err and "manifest.toml" in err and "masstone" in err, err
     assert "root:x:0:0" in err
+
+
+def test_validate_never_writes_its_report_over_an_input(material, tmp_path):
+    """A manifest named validation.json beside its material, reports asked for in that folder: refused."""
+    copy_sample(tmp_path)
+    (tmp_path / "manifest.toml").rename(tmp_path / "validation.json")
+    shutil.copy(material / "F1.json", tmp_path / "F1.json")
+    before = snapshot(tmp_path, tmp_path / "never")
+    argv = ["validate", tmp_path / "F1.json", "--manifest", tmp_path / "validation.json", "-o", tmp_path]
+    status, _, err = run_cli(argv)
+    assert status == 2 and "never writes over its inputs" in err and "validation.json" in err, err
+    assert snapshot(tmp_path, tmp_path / "never") == before
