@@ -10,6 +10,7 @@ for swatches. Arrays: reflectance with wavelength last.
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import colour
@@ -22,19 +23,32 @@ OBSERVERS = {
     "10": "CIE 1964 10 Degree Standard Observer",
 }
 
-#: Names accepted on the command line -> colour-science's names (F11 is 'FL11' there).
-_ALIASES = {"F2": "FL2", "F7": "FL7", "F11": "FL11"}
+def illuminant_key(name: str) -> str:
+    """colour-science's key of the CIE illuminant ``name``, the one resolver of illuminant names for scenes, recipes
+    and validation: case-insensitive; the CIE's F1 ... F12 and F3.1 ... F3.15 are colour-science's FL1 ... (and FL
+    names work too); LED-B1 ... LED-V2 (CIE 15:2018), A, B, C, D50 ... D75, E, ISO 7589 names.
+
+    Raises
+    ------
+    ValueError
+        The name is not an illuminant colour-science knows; the message gives examples that are.
+    """
+    upper = str(name).strip().upper()
+    if re.fullmatch(r"F\d+(\.\d+)?", upper):
+        upper = "FL" + upper[1:]
+    key = {k.upper(): k for k in colour.SDS_ILLUMINANTS}.get(upper)
+    if key is None:
+        raise ValueError(f"unknown illuminant {name!r}; expected a CIE illuminant such as A, D50, D65, F2, F11 or "
+                         "LED-B3")  # fmt: skip
+    return key
 
 
 def illuminant_sd(name: str) -> colour.SpectralDistribution:
-    """The CIE illuminant called ``name`` (A, D50, D55, D65, D75, E, F2, F7, F11, ...)."""
-    key = _ALIASES.get(name.upper(), name.upper())
-    if key not in colour.SDS_ILLUMINANTS:
-        known = ", ".join(sorted(set(colour.SDS_ILLUMINANTS) & {"A", "D50", "D55", "D65", "D75", "E", "FL2", "FL11"}))
-        raise InputError(
-            f"unknown illuminant {name!r}; expected one of {known.replace('FL', 'F')}", field="--illuminant"
-        )
-    return colour.SDS_ILLUMINANTS[key]
+    """The CIE illuminant called ``name`` (see :func:`illuminant_key`)."""
+    try:
+        return colour.SDS_ILLUMINANTS[illuminant_key(name)]
+    except ValueError as err:
+        raise InputError(str(err), field="--illuminant") from None
 
 
 def _cmfs(observer: str) -> colour.MultiSpectralDistributions:

@@ -29,6 +29,7 @@ import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kmpipe import files
+from kmpipe.colorimetry import illuminant_key
 from kmpipe.errors import InputError
 from kmpipe.manifest import (
     ThicknessOrZero,
@@ -75,8 +76,7 @@ class RenderSettings(_Strict):
     @field_validator("illuminant")
     @classmethod
     def _known_illuminant(cls, value: str) -> str:
-        if value not in colour.SDS_ILLUMINANTS:
-            raise ValueError(f"unknown illuminant {value!r}; e.g. D65, D50, A, F11")
+        illuminant_key(value)  # the one resolver: what validation accepts, a scene accepts
         return value
 
     @field_validator("mode")

@@ -565,3 +565,36 @@ def test_more_bands_than_the_materials_wavelengths_exits_2(tmp_path, material_fi
     path = write_scene(tmp_path, tmp_path / "four.json", mode_line='mode = "bands:5"')
     err = _render_status(tmp_path, path, capsys)
     assert "'scene.mode'" in err and "(4)" in err
+
+
+@pytest.mark.parametrize(
+    ("name", "key"),
+    [("F11", "FL11"), ("f11", "FL11"), ("FL11", "FL11"), ("F3.1", "FL3.1"), ("LED-B3", "LED-B3"), ("d65", "D65")],
+)
+def test_scenes_recipes_and_validation_resolve_illuminants_alike(name, key):
+    """One resolver: what validation accepts (CIE names, F for colour-science's FL), a scene or recipe accepts."""
+    import colour
+
+    from kmpipe.colorimetry import illuminant_sd
+    from kmpipe.scene import RenderSettings
+
+    assert RenderSettings(illuminant=name).illuminant == name
+    assert illuminant_sd(name) is colour.SDS_ILLUMINANTS[key]
+
+
+def test_an_unknown_illuminant_is_refused_alike_and_the_message_suggests_only_known_ones():
+    import re
+
+    import colour
+    from pydantic import ValidationError
+
+    from kmpipe.colorimetry import illuminant_key, illuminant_sd
+    from kmpipe.errors import InputError
+    from kmpipe.scene import RenderSettings
+
+    with pytest.raises(ValidationError, match="unknown illuminant 'X99'"):
+        RenderSettings(illuminant="X99")
+    with pytest.raises(InputError, match="unknown illuminant 'X99'") as refused:
+        illuminant_sd("X99")
+    suggested = re.findall(r"[A-Z]+[\w.-]*\d\w*|\bA\b", refused.value.message.split(";")[1])
+    assert suggested and all(illuminant_key(s) in colour.SDS_ILLUMINANTS for s in suggested)
