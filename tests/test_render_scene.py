@@ -6,6 +6,7 @@ planned mode by kmpipe.optical_tables.composite) times the light's radiance.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -119,7 +120,20 @@ def test_explain_prints_the_chosen_mode(tmp_path, material_file, capsys):
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out"), "--explain"]) == 0
     out = capsys.readouterr().out
     assert "Render plan under D65" in out
-    assert "rgb" in out and "<- chosen" in out
+    chosen = re.findall(r"^ +(\S+): max .*<- chosen$", out, re.M)
+    assert chosen == ["rgb"] and "mode rgb was requested" in out
+
+
+def test_explain_shows_the_cheapest_mode_that_meets_the_target_chosen(tmp_path, material_file, capsys):
+    """Unforced, the plan tries modes cheapest first and marks the first whose max Delta E meets the target."""
+    scene_path = write_scene(tmp_path, material_file, mode_line="accuracy = 0.5")
+    assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out"), "--explain"]) == 0
+    out = capsys.readouterr().out
+    rows = re.findall(r"^ +(\S+): max ([\d.]+), mean [\d.]+ \((meets|misses) target\)(  <- chosen)?$", out, re.M)
+    assert rows, out
+    *cheaper, last = rows
+    assert all(float(m) > 0.5 and verdict == "misses" and not mark for _, m, verdict, mark in cheaper)
+    assert float(last[1]) <= 0.5 and last[2] == "meets" and last[3]
 
 
 def km_reflectance(K, S, X, Rg):
