@@ -29,7 +29,7 @@ from typing import Literal
 
 import numpy as np
 import serial
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 from rich.console import Console
 from rich.markup import escape
 
@@ -50,16 +50,9 @@ from kmpipe.files import (
     regular_file,
     same_file,
 )
-from kmpipe.manifest import (
-    Thickness,
-    field_line,
-    input_error,
-    located_in,
-    parse_thickness_mm,
-    read_toml,
-    toml_line,
-)
+from kmpipe.manifest import Thickness, parse_thickness_mm
 from kmpipe.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
+from kmpipe.toml_input import StrictModel, field_line, input_error, located_in, read_toml, toml_line
 from kmpipe.white import certified_reflectance, radiance_to_reflectance
 
 #: Wavelengths of a CS-2000 reading (nm).
@@ -80,11 +73,7 @@ LV_TOLERANCE = 0.02
 LV_FLOOR = 1e-4
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class PlanSample(_Strict):
+class PlanSample(StrictModel):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     product: str = ""
     kind: str = ""
@@ -99,7 +88,7 @@ class PlanSample(_Strict):
         return name
 
 
-class PlanInstrument(_Strict):
+class PlanInstrument(StrictModel):
     speed: Literal["normal", "fast", "multi-normal", "multi-fast", "manual"] = "normal"
     nd: Literal["off", "on", "auto"] = "auto"
     integration: float | None = Field(default=None, gt=0)  # s: multi-integration time, or manual exposure
@@ -107,16 +96,16 @@ class PlanInstrument(_Strict):
     repeats: int = Field(default=1, ge=1, le=20)
 
 
-class PlanWhite(_Strict):
+class PlanWhite(StrictModel):
     certified: str = "builtin:baso4"
     repeats: int | None = Field(default=None, ge=1, le=20)
 
 
-class PlanBacking(_Strict):
+class PlanBacking(StrictModel):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
 
 
-class _WithThickness(_Strict):
+class _WithThickness(StrictModel):
     thickness: Thickness | None = None  # e.g. "30 um"
 
 
@@ -128,7 +117,7 @@ class PlanFilm(_WithThickness):
     over: str
 
 
-class Plan(_Strict):
+class Plan(StrictModel):
     sample: PlanSample
     instrument: PlanInstrument = PlanInstrument()
     white: PlanWhite = PlanWhite()

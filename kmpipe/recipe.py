@@ -22,12 +22,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
 from kmpipe.files import regular_file
-from kmpipe.manifest import input_error, located_in, read_toml, toml_line
 from kmpipe.scene import MAX_LAYERS, RenderSettings, SceneFile
+from kmpipe.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
 from kmpipe.validation import Thresholds
 
 #: The material of the product itself, in its layer stack.
@@ -36,15 +36,11 @@ SELF = "self"
 SOURCES = ("measure", "replay", "fit", "material")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
 class LineInfo(RenderSettings):
     name: str = Field(min_length=1)
 
 
-class ValidationInfo(_Strict):
+class ValidationInfo(StrictModel):
     illuminants: list[str] = Field(default=["D65"], min_length=1)
     delta_e_warn: float | None = None
     delta_e_fail: float | None = None
@@ -52,18 +48,18 @@ class ValidationInfo(_Strict):
     rmse_fail: float | None = None
 
 
-class ReplaySource(_Strict):
+class ReplaySource(StrictModel):
     log: str = Field(min_length=1)
     plan: str = Field(min_length=1)
 
 
-class MeasureSource(_Strict):
+class MeasureSource(StrictModel):
     plan: str = Field(min_length=1)
     port: str = Field(min_length=1)
     baudrate: int = Field(default=115200, gt=0, le=4_000_000)
 
 
-class ProductInfo(_Strict):
+class ProductInfo(StrictModel):
     name: str = Field(min_length=1, max_length=80)
     shade: str | None = None
     measure: MeasureSource | None = None
@@ -96,7 +92,7 @@ class ProductInfo(_Strict):
         return next((k for k in SOURCES if getattr(self, k) is not None), None)
 
 
-class OutputsInfo(_Strict):
+class OutputsInfo(StrictModel):
     frames: str = Field(default="frames", min_length=1)
     reports: str = Field(default="reports", min_length=1)
     sheet: str | None = "sheet.png"
@@ -114,10 +110,10 @@ class OutputsInfo(_Strict):
 SCENE_TABLES = ("scene", "substrate", "skin", "light", "ground", "camera", "turntable", "output")
 
 
-class RecipeFile(_Strict):
+class RecipeFile(StrictModel):
     line: LineInfo
     validation: ValidationInfo = ValidationInfo()
-    scene: dict[str, Any] = {}
+    scene: dict[str, Any] = Field(default_factory=dict)
     substrate: dict[str, Any] | None = None
     skin: dict[str, Any] | None = None
     light: list[dict[str, Any]] | None = None

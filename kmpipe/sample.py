@@ -15,8 +15,9 @@ import numpy as np
 
 from kmpipe.errors import InputError
 from kmpipe.files import regular_file
-from kmpipe.manifest import FitSettings, Manifest, field_line, load_manifest, parse_grid
+from kmpipe.manifest import FitSettings, Manifest, load_manifest, parse_grid
 from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
+from kmpipe.toml_input import field_line
 from kmpipe.white import ReadingSource, certified_reflectance, radiance_to_reflectance
 
 #: Default fitting step (nm) for finer data: 8x faster than 1 nm for a median Delta E 2000 of 0.04

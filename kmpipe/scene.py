@@ -26,20 +26,15 @@ from typing import Annotated, Literal
 import colour
 import numpy as np
 import trimesh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from kmpipe import files
 from kmpipe.colorimetry import illuminant_key
 from kmpipe.errors import InputError
-from kmpipe.manifest import (
-    ThicknessOrZero,
-    input_error,
-    located_in,
-    parse_thickness_mm,
-    read_toml,
-)
+from kmpipe.manifest import ThicknessOrZero, parse_thickness_mm
 from kmpipe.material import Material, read_material
 from kmpipe.optical_tables import parse_mode
+from kmpipe.toml_input import StrictModel, input_error, located_in, read_toml
 
 #: Most films in one stack (the layer pass's limit, renderer.layers.MAX_LAYERS).
 MAX_LAYERS = 4
@@ -62,11 +57,7 @@ MAX_DISTANCE_MM = 1e5
 MIN_DIRECTION = 1e-6
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class RenderSettings(_Strict):
+class RenderSettings(StrictModel):
     """The illuminant and the render planner's accuracy target or forced mode (a scene's, or a product line's)."""
 
     illuminant: str = "D65"
@@ -104,7 +95,7 @@ class SceneInfo(RenderSettings):
     shadow_map: int | None = Field(default=None, ge=64, le=8192)
 
 
-class SubstrateInfo(_Strict):
+class SubstrateInfo(StrictModel):
     reflectance: float | str
     albedo_texture: str | None = None
     albedo_encoding: Literal["srgb", "linear"] | None = None
@@ -128,7 +119,7 @@ class SubstrateInfo(_Strict):
         return value
 
 
-class ThicknessMapInfo(_Strict):
+class ThicknessMapInfo(StrictModel):
     """A thickness map: ``min`` where the image's channel is 0, ``max`` where it is 1, linear in between."""
 
     file: str = Field(min_length=1)
@@ -137,12 +128,12 @@ class ThicknessMapInfo(_Strict):
     max: ThicknessOrZero
 
 
-class SpecularInfo(_Strict):
+class SpecularInfo(StrictModel):
     roughness: float = Field(gt=0.0, le=2.0)
     ior: float = Field(default=1.5, ge=1.0, le=4.0)
 
 
-class ScatteringInfo(_Strict):
+class ScatteringInfo(StrictModel):
     alpha: float = Field(default=1.0, gt=0.0, le=1000.0)
     beta: float = Field(default=800.0, ge=0.0, le=1e6)
     gradient_clamp: float = Field(default=0.001, ge=0.0, le=1.0)  # metres of depth per pixel
@@ -161,7 +152,7 @@ _Vector = tuple[_Coordinate, _Coordinate, _Coordinate]
 _Radiance = Annotated[float, Field(ge=0.0, le=MAX_RADIANCE)]
 
 
-class LayerInfo(_Strict):
+class LayerInfo(StrictModel):
     material: str = Field(min_length=1)
     thickness: ThicknessOrZero | None = None
     thickness_map: ThicknessMapInfo | None = None
@@ -174,7 +165,7 @@ class LayerInfo(_Strict):
         return self
 
 
-class LightInfo(_Strict):
+class LightInfo(StrictModel):
     kind: Literal["directional", "point"] = "directional"
     direction: _Vector | None = None
     position: _Vector | None = None
@@ -198,16 +189,16 @@ class LightInfo(_Strict):
         return self
 
 
-class GroundInfo(_Strict):
+class GroundInfo(StrictModel):
     reflectance: float = Field(ge=0.0, le=1.0)
 
 
-class OutputInfo(_Strict):
+class OutputInfo(StrictModel):
     tone_map: Literal["none", "reinhard", "aces"] = "none"
     exposure_ev: float = Field(default=0.0, ge=-20.0, le=20.0)
 
 
-class CameraInfo(_Strict):
+class CameraInfo(StrictModel):
     azimuth_deg: float = Field(default=0.0, ge=-360.0, le=360.0)
     elevation_deg: float = Field(default=0.0, gt=-90.0, lt=90.0)
     distance_mm: float | None = Field(default=None, gt=0.0, le=MAX_DISTANCE_MM)
@@ -215,11 +206,11 @@ class CameraInfo(_Strict):
     fov_deg: float = Field(default=30.0, gt=0.0, lt=180.0)
 
 
-class TurntableInfo(_Strict):
+class TurntableInfo(StrictModel):
     frames: int = Field(ge=1, le=3600)
 
 
-class SceneFile(_Strict):
+class SceneFile(StrictModel):
     scene: SceneInfo
     substrate: SubstrateInfo | None = None
     skin: SkinInfo | None = None

@@ -23,10 +23,10 @@ from kmpipe.files import is_regular
 from kmpipe.flags import Flag
 from kmpipe.joint_fit import predict_readings
 from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.manifest import read_toml
 from kmpipe.material import Material, ResidualFigures, read_material
 from kmpipe.sample import Sample, file_sha256, load_sample
 from kmpipe.saunderson import saunderson_forward, saunderson_inverse
+from kmpipe.toml_input import read_toml
 
 FORMAT = "kmpipe-validation/1"
 
