@@ -16,6 +16,7 @@ expected, so the command line exits with status 2 and nothing already written is
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import stat
@@ -109,6 +110,20 @@ def read_head(path: str | os.PathLike, count: int) -> bytes:
             return handle.read(count)
     except OSError as err:
         raise InputError(f"cannot be read ({err.strerror or err})", path=path) from None
+
+
+def sha256(path: str | os.PathLike, what: str = "input") -> str:
+    """Hex SHA-256 of a regular file's bytes (read in 1 MiB chunks: no size limit), the one file hash of kmpipe
+    (provenance, cache keys, the plan a session follows); InputError if ``path`` is not a regular file."""
+    path = regular_file(path, what, limit=1 << 62)
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb", opener=lambda p, flags: os.open(p, flags | os.O_NONBLOCK)) as handle:
+            for chunk in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(chunk)
+    except OSError as err:
+        raise InputError(f"cannot be read ({err.strerror or err})", path=path) from None
+    return digest.hexdigest()
 
 
 def read_text(

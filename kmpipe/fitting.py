@@ -24,11 +24,12 @@ import numpy as np
 
 from kmpipe import __version__
 from kmpipe.errors import InputError
+from kmpipe.files import sha256
 from kmpipe.flags import Flag
 from kmpipe.inversion import Inversion, black_white, two_constant
 from kmpipe.joint_fit import fit_joint, predict_readings, standard_errors
 from kmpipe.material import MAX_COEFFICIENT_PER_MM, Material, MeasurementFit
-from kmpipe.sample import Sample, file_sha256
+from kmpipe.sample import Sample
 from kmpipe.saunderson import saunderson_inverse
 
 
@@ -229,5 +230,5 @@ def provenance(sample: Sample, output: Path) -> dict:
         "kmpipe_version": __version__,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "manifest": rel(sample.manifest_path),
-        "inputs": [{"path": rel(p), "sha256": file_sha256(p)} for p in sample.inputs],
+        "inputs": [{"path": rel(p), "sha256": sha256(p)} for p in sample.inputs],
     }

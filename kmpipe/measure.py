@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import hashlib
 import json
 import math
 import os
@@ -49,6 +48,7 @@ from kmpipe.files import (
     refuse_inputs,
     regular_file,
     same_file,
+    sha256,
 )
 from kmpipe.manifest import Thickness, parse_thickness_mm
 from kmpipe.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
@@ -128,7 +128,7 @@ class Plan(StrictModel):
 
 def plan_digest(path: Path) -> str:
     """SHA-256 (hex) of the plan file's bytes: what a session folder and a session log record as their plan."""
-    return hashlib.sha256(read_bytes(path, "TOML")).hexdigest()
+    return sha256(path, "TOML")
 
 
 def load_plan(path: Path) -> Plan:

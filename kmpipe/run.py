@@ -62,9 +62,8 @@ from pathlib import Path
 from kmpipe import __version__
 from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
-from kmpipe.files import is_regular, read_text, within
+from kmpipe.files import is_regular, read_text, sha256, within
 from kmpipe.recipe import Recipe, inside, load_recipe, slug
-from kmpipe.sample import file_sha256
 
 #: Frames of a product rendered by one task.
 FRAMES_PER_TASK = 4
@@ -438,9 +437,9 @@ def plan_run(
     def rel(path: Path) -> str:
         return os.path.relpath(path, out_dir)
 
-    def sha256(path: Path) -> str:
+    def hashed(path: Path) -> str:  # each input file hashed once per plan
         if path not in hashes:
-            hashes[path] = file_sha256(path)
+            hashes[path] = sha256(path)
         return hashes[path]
 
     material_key: dict[str, str] = {}
@@ -468,7 +467,7 @@ def plan_run(
             claims.folder(rel(path), whose, None, own=True)
         for path in written:
             claims.file(rel(path), f"material:{slug(product.name)}", whose, None)
-        key = _key("material", product.source, {name: sha256(Path(p)) for name, p in inputs.items()}, settings)
+        key = _key("material", product.source, {name: hashed(Path(p)) for name, p in inputs.items()}, settings)
         material_key[product.name] = key
         paths = {k: str(v) for k, v in inputs.items() if k in ("log", "plan", "manifest", "material")}
         add(Task(f"material:{slug(product.name)}", product.name, (), key, (rel(folder / "material.json"),),
@@ -493,7 +492,7 @@ def plan_run(
         owners = [product.name if layer.get("material") == "self" else layer["material"] for layer in product.layer]
         materials = {o: str(out_dir / PRODUCTS / slug(o) / "material.json") for o in owners}
         data = recipe.scene_data(product, {o: Path(slug(o)) for o in owners})  # paths out of the key: names
-        files = _scene_files(recipe, data, sha256)
+        files = _scene_files(recipe, data, hashed)
         frame_count = (data.get("turntable") or {}).get("frames", 1)
         deps = tuple(dict.fromkeys(f"material:{slug(o)}" for o in owners))
         checks = tuple(f"validate:{slug(o)}" for o in dict.fromkeys(owners) if f"validate:{slug(o)}" in tasks)
@@ -586,7 +585,7 @@ def _manifest_inputs(manifest: Path) -> dict[str, Path]:
     return {f"input:{i}": Path(p) for i, p in enumerate(load_sample(manifest).inputs)}
 
 
-def _scene_files(recipe: Recipe, data: dict, sha256: Callable[[Path], str]) -> dict[str, str]:
+def _scene_files(recipe: Recipe, data: dict, hashed: Callable[[Path], str]) -> dict[str, str]:
     """SHA-256 of the files a product's scene reads besides materials: maps, textures, a mesh file, a CSV."""
     from kmpipe.scene import BUILTIN_MESHES
 
@@ -600,7 +599,7 @@ def _scene_files(recipe: Recipe, data: dict, sha256: Callable[[Path], str]) -> d
     mesh = data.get("scene", {}).get("mesh", "card")
     if mesh not in BUILTIN_MESHES:
         paths.append(mesh)
-    return {p: sha256(recipe.base / p) for p in paths if is_regular(recipe.base / p)}
+    return {p: hashed(recipe.base / p) for p in paths if is_regular(recipe.base / p)}
 
 
 # ----------------------------------------------------------------------------------------------------- executing ---

@@ -7,7 +7,6 @@ measurements as arrays that the inversions and the joint fit take directly.
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,15 +80,6 @@ class Sample:
         if measurement.over is None:
             return np.zeros(self.readings.shape[1])
         return self.backings[measurement.over]
-
-
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes, for provenance."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 class _Tables:

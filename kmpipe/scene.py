@@ -16,7 +16,6 @@ centre, by 360 / frames degrees a frame; camera, lights and ground stay put, as 
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -386,7 +385,7 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
                 **at,
             )
         materials.append(material)
-        hashes.append(hashlib.sha256(files.read_bytes(material_path, "material", field=at["field"])).hexdigest())
+        hashes.append(files.sha256(material_path, "material"))
         if layer.thickness is not None:
             thicknesses.append(parse_thickness_mm(layer.thickness, allow_zero=True))
         else:

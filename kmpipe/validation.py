@@ -19,12 +19,12 @@ import numpy as np
 
 from kmpipe.colorimetry import delta_E_2000, reflectance_to_Lab
 from kmpipe.errors import InputError
-from kmpipe.files import is_regular
+from kmpipe.files import is_regular, sha256
 from kmpipe.flags import Flag
 from kmpipe.joint_fit import predict_readings
 from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
 from kmpipe.material import Material, ResidualFigures, read_material
-from kmpipe.sample import Sample, file_sha256, load_sample
+from kmpipe.sample import Sample, load_sample
 from kmpipe.saunderson import saunderson_forward, saunderson_inverse
 from kmpipe.toml_input import read_toml
 
@@ -551,7 +551,7 @@ def _changed_inputs(material: Material, material_path: Path) -> list[str]:
         path = material_path.parent / entry["path"]
         if not is_regular(path):
             changed.append(f"{entry['path']} (missing)")
-        elif file_sha256(path) != entry["sha256"]:
+        elif sha256(path) != entry["sha256"]:
             changed.append(entry["path"])
     return changed
 
