@@ -759,7 +759,8 @@ def locked(out_dir: str | Path, *, wait: bool = False) -> Iterator[Path]:
             fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
         except BlockingIOError:
             raise InputError(f"the output folder is being written by another kmpipe run ({_holder(descriptor)}); "
-                             "wait until it has finished and run again", path=path, field="-o") from None  # fmt: skip
+                             "wait until it has finished and run again, or run with --wait", path=path,
+                             field="-o") from None  # fmt: skip
         holder = {"pid": os.getpid(), "host": socket.gethostname(),
                   "since": datetime.datetime.now().astimezone().isoformat(timespec="seconds")}  # fmt: skip
         os.ftruncate(descriptor, 0)
