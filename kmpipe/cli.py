@@ -163,7 +163,7 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
 
 def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid, write_spectra_csv
-    from kmpipe.white import ReadingSource, certified_reflectance, radiance_to_reflectance
+    from kmpipe.white import ReadingSource, certified_file, certified_reflectance, radiance_to_reflectance
 
     def column_ref(text: str, option: str) -> tuple[Path, str]:
         file, sep, column = text.rpartition(":")
@@ -171,8 +171,8 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
             raise InputError(f"expected FILE:COLUMN, got {text!r}", field=option)
         return Path(file), column
 
-    certified_file = None if args.certified.startswith("builtin:") else _certified_file(args.certified)
-    inputs = [args.radiance, column_ref(args.white, "--white")[0], certified_file]
+    certificate = None if args.certified.startswith("builtin:") else certified_file(args.certified, Path.cwd())[0]
+    inputs = [args.radiance, column_ref(args.white, "--white")[0], certificate]
     if args.dark:
         inputs.append(column_ref(args.dark, "--dark")[0])
     files.output_file(args.output, inputs=inputs)
@@ -220,13 +220,6 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
         f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}", markup=False
     )
     return EXIT_OK
-
-
-def _certified_file(spec: str) -> Path:
-    """The file of a ``--certified FILE[:COLUMN]`` (a column is the text after the last colon, if that leaves a
-    file that exists)."""
-    file, sep, _ = spec.rpartition(":")
-    return Path(file) if sep and file and Path(file).exists() else Path(spec)
 
 
 def _material_files(target: Path) -> list[Path]:

@@ -51,7 +51,8 @@ def illuminant_sd(name: str) -> colour.SpectralDistribution:
         raise InputError(str(err), field="--illuminant") from None
 
 
-def _cmfs(observer: str) -> colour.MultiSpectralDistributions:
+def cmfs(observer: str) -> colour.MultiSpectralDistributions:
+    """The CIE colour-matching functions of the ``observer`` ("2": CIE 1931, "10": CIE 1964), from colour-science."""
     if observer not in OBSERVERS:
         raise InputError(f"observer must be 2 or 10 (degrees), got {observer!r}", field="--observer")
     return colour.MSDS_CMFS[OBSERVERS[observer]]
@@ -71,7 +72,7 @@ def reflectance_to_XYZ(reflectance, wavelengths, illuminant: str = "D65", observ
         # colour warns that it aligns the CMFs and illuminant to the spectra's shape: that is intended.
         warnings.simplefilter("ignore", colour.utilities.ColourWarning)
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
-        XYZ = colour.msds_to_XYZ(msds, cmfs=_cmfs(observer), illuminant=illuminant_sd(illuminant), method="Integration")
+        XYZ = colour.msds_to_XYZ(msds, cmfs=cmfs(observer), illuminant=illuminant_sd(illuminant), method="Integration")
     return np.asarray(XYZ).reshape(*R.shape[:-1], 3)
 
 

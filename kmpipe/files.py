@@ -16,12 +16,14 @@ expected, so the command line exits with status 2 and nothing already written is
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
 import stat
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import IO
 
 from kmpipe.errors import InputError
 
@@ -38,6 +40,10 @@ LIMITS = {
     "RAW photo": 512 * MiB,
     "mesh": 512 * MiB,
 }
+
+
+#: The limit of a file read in chunks or only in part (hashed, recognised by its first bytes).
+UNLIMITED = 1 << 62
 
 
 def _size(count: int) -> str:
@@ -80,22 +86,27 @@ def regular_file(path: str | os.PathLike, what: str, *, field: str | None = None
     return path
 
 
-def read_bytes(path: str | os.PathLike, what: str, *, field: str | None = None, limit: int | None = None) -> bytes:
-    """The bytes of a regular file of at most the format's limit (see :func:`regular_file`).
-
-    The file is opened without blocking and checked again once open, so a path swapped for a FIFO or a device
-    between the check and the read is still refused, and no more than ``limit + 1`` bytes are ever read.
-    """
-    path = regular_file(path, what, field=field, limit=limit)
-    limit = LIMITS.get(what, 64 * MiB) if limit is None else limit
+@contextlib.contextmanager
+def _opened(path: Path, what: str, field: str | None) -> Iterator[IO[bytes]]:
+    """``path`` (checked by :func:`regular_file`) opened for reading without blocking and checked again once open,
+    so that a path swapped for a FIFO or a device between the check and the read is still refused."""
     try:
-        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        handle = open(path, "rb", opener=lambda name, flags: os.open(name, flags | os.O_NONBLOCK))  # noqa: SIM115
     except OSError as err:
         raise InputError(f"cannot be read ({err.strerror or err}); expected a {what} file", path=path,
                          field=field) from None  # fmt: skip
-    with os.fdopen(descriptor, "rb") as handle:
+    with handle:
         if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
             raise InputError(f"is not a regular file; expected a {what} file", path=path, field=field)
+        yield handle
+
+
+def read_bytes(path: str | os.PathLike, what: str, *, field: str | None = None, limit: int | None = None) -> bytes:
+    """The bytes of a regular file of at most the format's limit (see :func:`regular_file`); no more than
+    ``limit + 1`` bytes are ever read."""
+    path = regular_file(path, what, field=field, limit=limit)
+    limit = LIMITS.get(what, 64 * MiB) if limit is None else limit
+    with _opened(path, what, field) as handle:
         data = handle.read(limit + 1)
     if len(data) > limit:
         raise InputError(f"is larger than {_size(limit)}, kmpipe's limit for a {what} file", path=path, field=field)
@@ -104,25 +115,19 @@ def read_bytes(path: str | os.PathLike, what: str, *, field: str | None = None, 
 
 def read_head(path: str | os.PathLike, count: int) -> bytes:
     """The first ``count`` bytes of a regular file (to recognise its format); InputError if it is not one."""
-    path = regular_file(path, "file", limit=1 << 62)
-    try:
-        with open(path, "rb", opener=lambda p, flags: os.open(p, flags | os.O_NONBLOCK)) as handle:
-            return handle.read(count)
-    except OSError as err:
-        raise InputError(f"cannot be read ({err.strerror or err})", path=path) from None
+    path = regular_file(path, "file", limit=UNLIMITED)
+    with _opened(path, "file", None) as handle:
+        return handle.read(count)
 
 
 def sha256(path: str | os.PathLike, what: str = "input") -> str:
     """Hex SHA-256 of a regular file's bytes (read in 1 MiB chunks: no size limit), the one file hash of kmpipe
     (provenance, cache keys, the plan a session follows); InputError if ``path`` is not a regular file."""
-    path = regular_file(path, what, limit=1 << 62)
+    path = regular_file(path, what, limit=UNLIMITED)
     digest = hashlib.sha256()
-    try:
-        with open(path, "rb", opener=lambda p, flags: os.open(p, flags | os.O_NONBLOCK)) as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
-    except OSError as err:
-        raise InputError(f"cannot be read ({err.strerror or err})", path=path) from None
+    with _opened(path, what, None) as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
     return digest.hexdigest()
 
 
@@ -209,7 +214,11 @@ def output_folder(path: str | os.PathLike, *, field: str | None = "-o", create: 
 def within(root: str | os.PathLike, path: str | os.PathLike, *, field: str | None = None) -> Path:
     """``path`` (absolute, or relative to ``root``) resolved, refused if it or a symlink on the way leaves ``root``."""
     root = Path(root).resolve()
-    target = (root / path).resolve()
+    try:
+        target = (root / path).resolve()
+    except (RuntimeError, OSError):  # a loop of symlinks (RuntimeError up to Python 3.12)
+        raise InputError("is a loop of symlinks; kmpipe writes only inside the output folder", path=root / path,
+                         field=field) from None  # fmt: skip
     if not (target == root or target.is_relative_to(root)):
         raise InputError(f"leads outside the output folder {root} (to {target}, through a symlink or '..'); "
                          "kmpipe writes only inside it", path=Path(root) / path, field=field)  # fmt: skip

@@ -22,7 +22,6 @@ import math
 import os
 import sys
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from typing import Literal
 
@@ -33,11 +32,12 @@ from rich.console import Console
 from rich.markup import escape
 
 from instruments.cs2000.driver import CS2000, InstrumentTimeout, Reading
-from instruments.cs2000.protocol import CS2000Error, ProtocolError
+from instruments.cs2000.protocol import WAVELENGTHS, CS2000Error, ProtocolError
 from instruments.session_log import SessionLogError, read_session_log
 from instruments.urlhandler.protocol_replay import parse_url
 from kmpipe import __version__
 from kmpipe.atomic_write import write_text_atomically
+from kmpipe.colorimetry import cmfs
 from kmpipe.errors import InputError
 from kmpipe.files import (
     name_problem,
@@ -54,9 +54,6 @@ from kmpipe.manifest import Thickness, parse_thickness_mm
 from kmpipe.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
 from kmpipe.toml_input import StrictModel, field_line, input_error, located_in, read_toml, toml_line
 from kmpipe.white import certified_reflectance, radiance_to_reflectance
-
-#: Wavelengths of a CS-2000 reading (nm).
-WAVELENGTHS = np.arange(380.0, 781.0)
 
 #: SPMS parameters of each speed mode name (internal ND: 0 off, 1 on, 2 auto).
 SPEED_MODES = {"normal": 0, "fast": 1, "multi-normal": 2, "manual": 3, "multi-fast": 4}
@@ -399,14 +396,6 @@ def _speed_parameters(instrument: PlanInstrument) -> tuple[int, ...]:
     return (mode, seconds, nd)
 
 
-@cache
-def _cmfs_2() -> np.ndarray:
-    """CIE 1931 2 deg colour-matching functions (colour-science) at 380-780 nm, 1 nm: shape (401, 3)."""
-    import colour
-
-    return np.asarray(colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"][WAVELENGTHS], dtype=np.float64)
-
-
 def colorimetry_problem(radiance: np.ndarray, colorimetry: dict[str, float | None]) -> str | None:
     """Why a reading's colorimetric block cannot have come with its spectrum (None when it can).
 
@@ -424,7 +413,7 @@ def colorimetry_problem(radiance: np.ndarray, colorimetry: dict[str, float | Non
         return f"chromaticity x + y = {x + y:g} exceeds 1"
     if lv is not None and not (math.isfinite(lv) and lv >= 0.0):
         return f"Lv = {lv:g} cd/m2 is not a luminance (finite, >= 0)"
-    xyz = 683.0 * np.asarray(radiance, dtype=np.float64) @ _cmfs_2()
+    xyz = 683.0 * np.asarray(radiance, dtype=np.float64) @ cmfs("2")[WAVELENGTHS]
     if lv is not None and abs(lv - xyz[1]) > max(LV_TOLERANCE * abs(xyz[1]), LV_FLOOR):
         return f"Lv = {lv:.6g} cd/m2, but its spectrum gives {xyz[1]:.6g} cd/m2"
     total = float(xyz.sum())

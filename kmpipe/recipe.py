@@ -25,7 +25,7 @@ from typing import Any
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
-from kmpipe.files import regular_file
+from kmpipe.files import UNLIMITED, regular_file
 from kmpipe.scene import MAX_LAYERS, RenderSettings, SceneFile
 from kmpipe.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
 from kmpipe.validation import Thresholds
@@ -286,7 +286,7 @@ def _thresholds(info: ValidationInfo, path: Path, text: str) -> Thresholds:
 def _existing(recipe: Recipe, relative: str, loc: tuple) -> Path:
     target = recipe.base / relative
     try:
-        regular_file(target, "input", limit=1 << 62)  # the reader applies its format's limit
+        regular_file(target, "input", limit=UNLIMITED)  # the reader applies its format's limit
     except InputError as err:
         raise InputError(f"names {target}, which {err.message.split(';')[0]}", **recipe.where(loc)) from None
     return target

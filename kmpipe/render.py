@@ -15,8 +15,6 @@ a ground under the product.
 from __future__ import annotations
 
 import math
-import os
-import secrets
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -486,8 +484,8 @@ def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) 
     """Write one frame as a pair: the linear EXR (32-bit float, with ``header``) and the PNG tone mapped as
     ``output`` (the scene's [output]) says.
 
-    Both go to temporary names first, then the old EXR is removed and the PNG and the EXR are renamed in place, in
-    that order: an exit at any moment leaves no EXR (what caches and readers look for) without its PNG. A frame with
+    Each file is written atomically (renderer.image_io); the old EXR is removed first and the new one written
+    last, so an exit at any moment leaves no EXR (what caches and readers look for) without its PNG. A frame with
     NaN or infinite pixels is a renderer bug: RuntimeError, and nothing is written for it.
     """
     from renderer.image_io import write_exr, write_png
@@ -496,18 +494,10 @@ def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) 
     bad = int(np.count_nonzero(~np.isfinite(image)))
     if bad:
         raise RuntimeError(f"the renderer gave {bad} NaN or infinite values for {exr}; nothing was written for it")
-    token = secrets.token_hex(8)
-    temporary_exr = exr.with_name(f".{exr.stem}.{token}.exr")
-    temporary_png = png.with_name(f".{png.stem}.{token}.png")
-    try:
-        write_exr(temporary_exr, image, header, half=False)
-        write_png(temporary_png, tone_map(image, output.tone_map, output.exposure_ev))
-        exr.unlink(missing_ok=True)
-        os.replace(temporary_png, png)
-        os.replace(temporary_exr, exr)
-    finally:
-        temporary_exr.unlink(missing_ok=True)
-        temporary_png.unlink(missing_ok=True)
+    tone_mapped = tone_map(image, output.tone_map, output.exposure_ev)
+    exr.unlink(missing_ok=True)
+    write_png(png, tone_mapped)
+    write_exr(exr, image, header, half=False)
 
 
 def _ab_sheet(out_dir: Path, scene: Scene, frames: int) -> Path:

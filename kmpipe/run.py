@@ -76,10 +76,9 @@ LOCK = STATE / "lock"
 #: Where the products' materials and sessions live, under the output folder.
 PRODUCTS = Path("products")
 #: Names of the temporary files kmpipe's writers make beside their targets (deleted at the start of a run):
-#: kmpipe.atomic_write's ``.NAME.<16 hex>.tmp``, kmpipe.render's frame pairs ``.frame_NNN.<16 hex>.exr`` / ``.png``,
-#: renderer.image_io's ``.STEM.<8 of a-z 0-9 _>.exr`` / ``.png`` (mkstemp) and the material copy's
-#: ``.material.json.tmp``.
-TEMPORARY = re.compile(r"\..+\.[0-9a-f]{16}\.(?:tmp|exr|png)|\..+\.[a-z0-9_]{8}\.(?:exr|png)|\.material\.json\.tmp")
+#: kmpipe.atomic_write's ``.NAME.<16 hex>.tmp`` and renderer.image_io's ``.STEM.<8 of a-z 0-9 _>.exr`` / ``.png``
+#: (mkstemp).
+TEMPORARY = re.compile(r"\..+\.[0-9a-f]{16}\.tmp|\..+\.[a-z0-9_]{8}\.(?:exr|png)")
 
 
 #: Largest contact sheet in pixels: a long line's sheet has cells smaller than 256 px to stay under it (a sheet takes
@@ -133,9 +132,7 @@ def do_material(source: str, inputs: dict, out: str) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     target = folder / "material.json"
     if source == "material":
-        temporary = folder / ".material.json.tmp"
-        shutil.copyfile(inputs["material"], temporary)
-        os.replace(temporary, target)
+        write_text_atomically(target, read_text(inputs["material"], "material"))
         return {}
     if source in ("measure", "replay"):
         session = folder / "session"
@@ -309,15 +306,6 @@ def _cached(out_dir: Path, task: Task) -> dict | None:
     return result if isinstance(result, dict) else None
 
 
-def _inside(root: Path, path: str | Path) -> Path:
-    """``path`` (under the output folder ``root``) resolved; refused if it, or a symlink on the way, leaves ``root``."""
-    try:
-        return within(root, path, field="-o")
-    except RuntimeError:  # pathlib's word for a loop of symlinks
-        raise InputError("is a loop of symlinks; kmpipe writes only inside the output folder", path=Path(root, path),
-                         field="-o") from None  # fmt: skip
-
-
 class _Claims:
     """Every path of a run's tasks, resolved: refused if it leads outside the output folder, exists as what it is
     not (a folder where a file goes), or collides with another task's: the same file, a file where a folder goes, a
@@ -346,7 +334,7 @@ class _Claims:
 
     def top(self, relative: str | Path, what: str, field: str | None, *, own: bool = False) -> None:
         """A folder of the output folder's layout: not the output folder, not in, nor holding, another one."""
-        target = _inside(self.root, relative)
+        target = within(self.root, relative, field="-o")
         if target == self.root:
             self._refuse(relative, f"the output folder {self.root} itself, which holds the others", field)
         for other, (name, other_field) in self.layout.items():
@@ -357,7 +345,7 @@ class _Claims:
 
     def folder(self, relative: str | Path, whose: str, field: str | None, *, own: bool = False) -> None:
         """A folder that ``whose`` writes into (``own``: holding nothing else)."""
-        target = _inside(self.root, relative)
+        target = within(self.root, relative, field="-o")
         if os.path.lexists(target) and not target.is_dir():
             raise InputError("exists and is not a folder; kmpipe writes a folder there", path=target, field="-o")
         for place in (target, *self._above(target)):
@@ -369,7 +357,7 @@ class _Claims:
 
     def file(self, relative: str | Path, task: str, whose: str, field: str | None) -> None:
         """A file that ``task`` writes, into folders of ``whose``."""
-        target = _inside(self.root, relative)
+        target = within(self.root, relative, field="-o")
         if target.is_dir():
             raise InputError("is a folder; kmpipe writes a file there", path=target, field="-o")
         if target in self.files:
@@ -460,9 +448,7 @@ def plan_run(
         else:
             inputs = {"material": base / product.material}
         folders = [folder] + ([folder / "session"] if product.source in ("measure", "replay") else [])
-        written = [folder / ".material.json.tmp"]
-        if product.source == "measure":
-            written += [folder / "session.jsonl", folder / "session-resumed.jsonl"]
+        written = [folder / "session.jsonl", folder / "session-resumed.jsonl"] if product.source == "measure" else []
         for path in folders:
             claims.folder(rel(path), whose, None, own=True)
         for path in written:
@@ -613,7 +599,7 @@ def call_task(function: Callable[..., dict], kwargs: dict, root: str | None = No
     """
     try:
         for path in paths:
-            _inside(Path(root), path)
+            within(Path(root), path, field="-o")
         return function(**kwargs)
     except InputError as err:
         return {"input_error": {"message": err.message, "path": None if err.path is None else str(err.path),
@@ -745,7 +731,7 @@ def locked(out_dir: str | Path, *, wait: bool = False) -> Iterator[Path]:
     that died holds no lock.
     """
     out_dir = Path(out_dir).absolute()
-    path = _inside(out_dir, LOCK)
+    path = within(out_dir, LOCK, field="-o")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o666)
@@ -792,7 +778,7 @@ def clean_temporaries(plan: RunPlan) -> list[Path]:
     if sheet is not None:
         places.append((plan.out_dir / sheet.parent, False))
     for folder, deep in places:
-        if not _inside(plan.out_dir, folder).is_dir():
+        if not within(plan.out_dir, folder, field="-o").is_dir():
             continue
         for top, folders, files, descriptor in os.fwalk(folder, follow_symlinks=False):  # a symlink is not entered
             for name in filter(TEMPORARY.fullmatch, files):
@@ -917,7 +903,7 @@ def _decide(plan: RunPlan, task: Task) -> bool:
 
 def _record(plan: RunPlan, task: Task) -> None:
     """Write the record of a task that has just finished (into the output folder, never out of it)."""
-    path = _inside(plan.out_dir, _record_path(Path(), task.id))
+    path = within(plan.out_dir, _record_path(Path(), task.id), field="-o")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from kmpipe.errors import InputError
+from kmpipe.files import is_regular
 from kmpipe.spectra import (
     CS2000_ERROR_SENTINEL,
     SpectralTable,
@@ -67,6 +68,22 @@ def _check_certified(values: np.ndarray, where: Callable[[int], str], what: str,
         )
 
 
+def certified_file(spec: str, base_dir: Path) -> tuple[Path, str | None]:
+    """The file and column (None: its only column) of a white standard's certificate ``PATH`` or ``PATH:COLUMN``
+    (relative to ``base_dir``); InputError when neither names a file. Not for ``builtin:`` specs."""
+    base_dir = Path(base_dir)
+    path = base_dir / spec
+    if spec and is_regular(path):
+        return path, None
+    head, colon, tail = spec.rpartition(":")
+    if not (colon and head and is_regular(base_dir / head)):
+        raise InputError(
+            f"white standard '{spec}' not found (looked for {path}); expected '{BUILTIN_BASO4}', the "
+            "path of a reflectance CSV, or PATH:COLUMN"
+        )
+    return base_dir / head, tail
+
+
 def certified_reflectance(spec: str, wavelengths_nm: Sequence[float] | np.ndarray, *, base_dir: Path) -> np.ndarray:
     """Certified reflectance (fraction) of the white standard, resampled to ``wavelengths_nm`` (nm).
 
@@ -93,18 +110,7 @@ def certified_reflectance(spec: str, wavelengths_nm: Sequence[float] | np.ndarra
             raise InputError(f"unknown built-in white standard '{spec}'; the built-in one is '{BUILTIN_BASO4}'")
         return baso4_typical(grid)
 
-    base_dir = Path(base_dir)
-    column = None
-    path = base_dir / spec
-    if not spec or not path.is_file():
-        head, colon, tail = spec.rpartition(":")
-        if not (colon and head and (base_dir / head).is_file()):
-            raise InputError(
-                f"white standard '{spec}' not found (looked for {path}); expected '{BUILTIN_BASO4}', the "
-                "path of a reflectance CSV, or PATH:COLUMN"
-            )
-        path, column = base_dir / head, tail
-
+    path, column = certified_file(spec, base_dir)
     table = read_spectra_csv(path)
     if table.wavelengths is None:
         raise InputError(

@@ -547,20 +547,20 @@ def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_pat
 
 
 def test_an_exit_between_the_renames_leaves_no_exr_without_its_png(tmp_path, material_file, monkeypatch):
-    import kmpipe.render
+    import renderer.image_io
     from kmpipe.render import render_scene
 
     scene = load_scene(write_scene(tmp_path, material_file))
     out = tmp_path / "out"
     render_scene(scene, out, echo=lambda text: None)
-    real = kmpipe.render.os.replace
+    real = renderer.image_io.os.replace
 
     def fail_on_exr(source, target):
         if Path(target) == out / "frame_000.exr":  # the EXR's rename, after the PNG's
             raise KeyboardInterrupt
         real(source, target)
 
-    monkeypatch.setattr(kmpipe.render.os, "replace", fail_on_exr)
+    monkeypatch.setattr(renderer.image_io.os, "replace", fail_on_exr)
     with pytest.raises(KeyboardInterrupt):
         render_scene(scene, out, echo=lambda text: None)
     assert sorted(p.name for p in out.iterdir()) == ["frame_000.png"]
