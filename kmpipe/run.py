@@ -572,20 +572,12 @@ def _manifest_inputs(manifest: Path) -> dict[str, Path]:
 
 
 def _scene_files(recipe: Recipe, data: dict, hashed: Callable[[Path], str]) -> dict[str, str]:
-    """SHA-256 of the files a product's scene reads besides materials: maps, textures, a mesh file, a CSV."""
-    from kmpipe.scene import BUILTIN_MESHES
+    """SHA-256 of the files a product's scene reads besides materials (:func:`kmpipe.scene.referenced_files`), by
+    their path relative to the recipe."""
+    from kmpipe.scene import SceneFile, referenced_files
 
-    paths = [layer["thickness_map"]["file"] for layer in data["layer"] if isinstance(layer.get("thickness_map"), dict)]
-    for key in ("substrate", "skin"):
-        table = data.get(key) or {}
-        if table.get("albedo_texture"):
-            paths.append(table["albedo_texture"])
-        if isinstance(table.get("reflectance"), str) and ".csv" in table["reflectance"].lower():
-            paths.append(table["reflectance"].split(":")[0])
-    mesh = data.get("scene", {}).get("mesh", "card")
-    if mesh not in BUILTIN_MESHES:
-        paths.append(mesh)
-    return {p: hashed(recipe.base / p) for p in paths if is_regular(recipe.base / p)}
+    paths = referenced_files(SceneFile.model_validate(data), recipe.base)  # checked when the recipe was loaded
+    return {os.path.relpath(p, recipe.base): hashed(p) for p in paths if is_regular(p)}
 
 
 # ----------------------------------------------------------------------------------------------------- executing ---

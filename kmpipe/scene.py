@@ -421,15 +421,20 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
 
 def _inputs(info: SceneFile, path: Path, base: Path) -> tuple[Path, ...]:
     """The files a checked scene reads (so that no output is written over one of them)."""
-    found = [path, *(base / layer.material for layer in info.layer)]
-    found += [base / layer.thickness_map.file for layer in info.layer if layer.thickness_map is not None]
+    return (path, *(base / layer.material for layer in info.layer), *referenced_files(info, base))
+
+
+def referenced_files(info: SceneFile, base: Path) -> list[Path]:
+    """The files a scene reads besides its materials, relative names resolved against ``base``: thickness maps, a
+    mesh file, an albedo texture, a reflectance CSV (what a render's cache key must hash)."""
+    found = [base / layer.thickness_map.file for layer in info.layer if layer.thickness_map is not None]
     if info.scene.mesh not in BUILTIN_MESHES:
         found.append(base / info.scene.mesh)
     if info.base.albedo_texture is not None:
         found.append(base / info.base.albedo_texture)
     if isinstance(info.base.reflectance, str) and not info.base.reflectance.startswith("colorchecker:"):
         found.append(base / info.base.reflectance.partition(":")[0])
-    return tuple(found)
+    return found
 
 
 def _check_mode(settings: RenderSettings, n_wavelengths: int, where: dict) -> None:
