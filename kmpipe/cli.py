@@ -127,11 +127,8 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
     written = []
     for manifest in args.manifest:
         sample = load_sample(manifest, grid=args.grid)
-        if to_folder:
-            name = files.safe_name(sample.name, path=manifest, field="sample.name")
-            output = files.within(args.output, f"{name}.json", field="sample.name")
-        else:
-            output = args.output
+        # the manifest's sample name is a safe file name; resolved, it must still stay in the folder
+        output = files.within(args.output, f"{sample.name}.json", field="sample.name") if to_folder else args.output
         if any(path == output for path, _ in written):
             raise InputError(
                 f"names sample {sample.name!r}, like an earlier manifest; each sample needs its own name "
@@ -334,7 +331,6 @@ def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
 def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
     from instruments.cs2000.emulator import ScriptError, run
 
-    files.regular_file(args.samples, "TOML", field="--samples")
     try:
         run(link=args.link, samples=args.samples, socket_port=args.socket, time_scale=args.time_scale)
     except ScriptError as err:
@@ -360,7 +356,6 @@ def _cmd_card(args: argparse.Namespace, console: Console) -> int:
 
     files.output_file(args.output, suffixes=(".png", ".pdf"), inputs=[args.layout])
     if args.layout is not None:
-        files.regular_file(args.layout, "TOML", field="--layout")
         try:
             layout = load_layout(args.layout)
         except LayoutError as err:
@@ -389,9 +384,8 @@ def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
     files.output_folder(args.output, create=False)
     if args.name is not None:
         files.safe_name(args.name, field="--name")
-    for photo in args.photos:
+    for photo in args.photos:  # rawpy would read a FIFO or a device
         files.regular_file(photo, "RAW photo")
-    files.regular_file(args.layout, "TOML", field="--layout")
     for name in ("reflectance.csv", "manifest.toml"):
         files.refuse_inputs(args.output / name, [*args.photos, args.layout])
     manifest = ingest_raw(
@@ -484,7 +478,6 @@ def _progress(console: Console):
 def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.render import render_scene
 
-    files.regular_file(args.scene, "TOML")
     files.output_folder(args.output, create=False)
     with _progress(console) as progress:
         task = progress.add_task("rendering frames", total=None)
