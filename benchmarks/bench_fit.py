@@ -1,4 +1,4 @@
-"""Benchmark: joint K, S fit of one sample (kmpipe.joint_fit.fit_joint), 81 wavelengths, 6 measurements.
+"""Benchmark: joint K, S fit of one sample (kmpipe.physics.joint_fit.fit_joint), 81 wavelengths, 6 measurements.
 
 Each simulated sample is a realistic paint mixture (see :mod:`common`) measured as a cosmetic drawdown would
 be: two film thicknesses over the black and the white half of a card, a masstone, and one thicker film over
@@ -29,18 +29,22 @@ import nlopt
 import numpy as np
 from common import NOISE, Pigments, Table, card_black, card_white, delta_e_2000, load_pigments, random_recipes
 
-from kmpipe.inversion import black_white
-from kmpipe.joint_fit import fit_joint
-from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.saunderson import saunderson_forward, saunderson_inverse
+from kmpipe.physics.inversion import black_white
+from kmpipe.physics.joint_fit import fit_joint
+from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+from kmpipe.physics.saunderson import saunderson_forward, saunderson_inverse
 
 N_SAMPLES = 50
 TARGET_MS = 50.0
 SAUNDERSON = (0.04, 0.6)
 #: (thickness label, backing) of the six measurements; the closed-form start uses the "X2" pair.
 LAYOUT = (
-    ("X1", "black"), ("X1", "white"), ("X2", "black"), ("X2", "white"),
-    ("masstone", "white"), ("X3", "black"),
+    ("X1", "black"),
+    ("X1", "white"),
+    ("X2", "black"),
+    ("X2", "white"),
+    ("masstone", "white"),
+    ("X3", "black"),
 )
 #: Thickness ranges (mm) of the three films of a sample.
 THICKNESS = {"X1": (0.010, 0.020), "X2": (0.030, 0.045), "X3": (0.050, 0.060)}
@@ -70,10 +74,12 @@ class Sample:
 
 def predict(K, S, thickness, backgrounds) -> np.ndarray:
     """KM reflectance (m, n) of films of ``thickness`` (m,) over ``backgrounds`` (m, n); inf = masstone."""
-    return np.array([
-        reflectance_over_background(K, S, X, G) if np.isfinite(X) else reflectance_infinite(K, S)
-        for X, G in zip(thickness, backgrounds, strict=True)
-    ])
+    return np.array(
+        [
+            reflectance_over_background(K, S, X, G) if np.isfinite(X) else reflectance_infinite(K, S)
+            for X, G in zip(thickness, backgrounds, strict=True)
+        ]
+    )
 
 
 def make_samples(pigments: Pigments, count: int, seed: int, saunderson=None) -> list[Sample]:
@@ -135,8 +141,7 @@ class Variant:
     S: np.ndarray
 
 
-def run_variant(name: str, samples: list[Sample], wavelengths, smoothness: float = 0.0,
-                repeats: int = 3) -> Variant:
+def run_variant(name: str, samples: list[Sample], wavelengths, smoothness: float = 0.0, repeats: int = 3) -> Variant:
     fit_sample(samples[0], smoothness)  # warm up (imports, caches)
     times, evaluations, statuses, fitted, K_fit, S_fit = [], [], Counter(), [], [], []
     K_in = S_in = counted = total = 0
@@ -260,19 +265,21 @@ def tables(results: dict) -> list[Table]:
     rows = []
     for v in results["variants"]:
         median_ms = float(np.median(v.times_ms))
-        rows.append([
-            v.name,
-            f"{median_ms:.1f}",
-            f"{np.percentile(v.times_ms, 90):.1f}",
-            f"{np.median(v.evaluations):.0f}",
-            f"{np.median(v.dE_measured):.3f}",
-            f"{np.percentile(v.dE_measured, 95):.3f}",
-            f"{np.median(v.dE_truth):.3f}",
-            f"{np.percentile(v.dE_truth, 95):.3f}",
-            f"{v.K_inside:.2f}",
-            f"{v.S_inside:.2f}",
-            "yes" if median_ms <= TARGET_MS else "no",
-        ])
+        rows.append(
+            [
+                v.name,
+                f"{median_ms:.1f}",
+                f"{np.percentile(v.times_ms, 90):.1f}",
+                f"{np.median(v.evaluations):.0f}",
+                f"{np.median(v.dE_measured):.3f}",
+                f"{np.percentile(v.dE_measured, 95):.3f}",
+                f"{np.median(v.dE_truth):.3f}",
+                f"{np.percentile(v.dE_truth, 95):.3f}",
+                f"{v.K_inside:.2f}",
+                f"{v.S_inside:.2f}",
+                "yes" if median_ms <= TARGET_MS else "no",
+            ]
+        )
     notes = [
         f"{results['n_samples']} samples, {results['n_wavelengths']} wavelengths (380-780 nm, 5 nm), "
         "6 measurements: X1 (10-20 um) and X2 (30-45 um) over black and white, masstone, X3 (50-60 um) over "
@@ -281,41 +288,57 @@ def tables(results: dict) -> list[Table]:
         "percentile over the samples",
         "Delta E 2000: D65, CIE 1931 2 degree observer, colour.sd_to_XYZ (ASTM E308), over samples x 6 "
         "measurements; 'meas.' = fitted vs measured readings, 'truth' = fitted vs noise-free readings",
-        "+-1 SE: fraction of the true K (S) within one standard error, at unflagged wavelengths "
-        "(about 0.68 expected)",
+        "+-1 SE: fraction of the true K (S) within one standard error, at unflagged wavelengths (about 0.68 expected)",
     ]
     plain = results["variants"][0]
     for v in results["variants"][1:2]:  # same readings as plain: how much the option moves K and S
         dK = np.abs(v.K / np.where(plain.K > 0, plain.K, np.inf) - 1.0)
         dS = np.abs(v.S / plain.S - 1.0)
-        notes.append(f"{v.name} vs plain (same readings): |relative change| of K median {np.median(dK):.1e}, "
-                     f"max {dK.max():.1e}; of S median {np.median(dS):.1e}, max {dS.max():.1e}")
+        notes.append(
+            f"{v.name} vs plain (same readings): |relative change| of K median {np.median(dK):.1e}, "
+            f"max {dK.max():.1e}; of S median {np.median(dS):.1e}, max {dS.max():.1e}"
+        )
     for v in results["variants"]:
         statuses = ", ".join(f"{status} {count}" for status, count in v.statuses.most_common())
-        notes.append(f"{v.name}: nlopt status {statuses}; coverage counted at {v.covered} of {v.total} "
-                     "wavelengths")
+        notes.append(f"{v.name}: nlopt status {statuses}; coverage counted at {v.covered} of {v.total} wavelengths")
     fit = Table(
         "Joint fit of one sample (fit_joint, nlopt LD_LBFGS)",
-        ["variant", "ms/sample (<= 50)", "ms p90", "evaluations", "dE00 meas. median", "dE00 meas. p95",
-         "dE00 truth median", "dE00 truth p95", "K in +-1 SE", "S in +-1 SE", "target met"],
+        [
+            "variant",
+            "ms/sample (<= 50)",
+            "ms p90",
+            "evaluations",
+            "dE00 meas. median",
+            "dE00 meas. p95",
+            "dE00 truth median",
+            "dE00 truth p95",
+            "K in +-1 SE",
+            "S in +-1 SE",
+            "target met",
+        ],
         rows,
         notes,
     )
     overhead = Table(
         "nlopt LD_LBFGS bookkeeping per evaluation (cheap Rosenbrock objective, at most 300 evaluations)",
-        ["n variables", "vector storage", "evaluations", "us/eval in nlopt + wrapper",
-         "us/eval in objective"],
-        [[str(n), "default" if storage == 0 else str(storage), str(calls), f"{outside:.1f}", f"{inside:.1f}"]
-         for n, storage, calls, outside, inside in results["overhead"]],
+        ["n variables", "vector storage", "evaluations", "us/eval in nlopt + wrapper", "us/eval in objective"],
+        [
+            [str(n), "default" if storage == 0 else str(storage), str(calls), f"{outside:.1f}", f"{inside:.1f}"]
+            for n, storage, calls, outside, inside in results["overhead"]
+        ],
         ["n = 162 is a 5 nm fit (2 x 81 unknowns), n = 802 a 1 nm fit; fit_joint uses the default storage"],
     )
     profile = Table(
         f"cProfile of fitting {results['n_profiled']} samples (plain variant), top entries by own time",
         ["function", "calls", "own s", "cumulative s", "own % of profiled"],
-        [[name, str(calls), f"{own:.3f}", f"{cumulative:.3f}", f"{100 * own / results['profiled_total']:.0f}"]
-         for name, calls, own, cumulative in results["profile"]],
-        ["own time of opt_optimize = nlopt's L-BFGS and its Python callback wrapper (numpy ufunc time is "
-         "charged to the calling Python function); profiling inflates per-call overheads"],
+        [
+            [name, str(calls), f"{own:.3f}", f"{cumulative:.3f}", f"{100 * own / results['profiled_total']:.0f}"]
+            for name, calls, own, cumulative in results["profile"]
+        ],
+        [
+            "own time of opt_optimize = nlopt's L-BFGS and its Python callback wrapper (numpy ufunc time is "
+            "charged to the calling Python function); profiling inflates per-call overheads"
+        ],
     )
     return [fit, overhead, profile]
 

@@ -66,8 +66,16 @@ def run(n_samples: int = N_SAMPLES, seed: int = 23) -> dict:
                 S = _to_1nm(result.S, grid, fine)
                 predicted.append(predict(K, S, sample.thickness, sample.backgrounds))
             predictions[method, step] = np.array(predicted)
-            rows.append(Row(method, step, np.array(times), np.array(evaluations) if evaluations else None,
-                            None, delta_e_2000(truth, predictions[method, step], fine)))
+            rows.append(
+                Row(
+                    method,
+                    step,
+                    np.array(times),
+                    np.array(evaluations) if evaluations else None,
+                    None,
+                    delta_e_2000(truth, predictions[method, step], fine),
+                )
+            )
     reference = predictions["joint fit", 1]
     for row in rows:
         row.dE_reference = delta_e_2000(reference, predictions[row.method, row.step], fine)
@@ -80,32 +88,45 @@ def tables(results: dict) -> list[Table]:
     reference_ms = float(np.median(by_key["joint fit", 1].times_ms))
     for r in sorted(results["rows"], key=lambda r: (r.method != "joint fit", -r.step)):
         median_ms = float(np.median(r.times_ms))
-        rows.append([
-            r.method,
-            f"{r.step} nm",
-            f"{median_ms:.2f}",
-            f"{reference_ms / median_ms:.1f}",
-            "" if r.evaluations is None else f"{np.median(r.evaluations):.0f}",
-            f"{np.median(r.dE_reference):.3f}",
-            f"{np.percentile(r.dE_reference, 95):.3f}",
-            f"{r.dE_reference.max():.3f}",
-            f"{np.median(r.dE_truth):.3f}",
-            f"{np.percentile(r.dE_truth, 95):.3f}",
-        ])
-    return [Table(
-        "Wavelength grid of the fit: speed vs accuracy (predictions at 1 nm, 380-780 nm)",
-        ["method", "grid", "ms/sample", "x faster than 1 nm fit", "evaluations", "dE00 vs 1 nm fit median",
-         "p95", "max", "dE00 vs truth median", "p95"],
-        rows,
-        [
-            f"{results['n_samples']} samples x 6 measurements (as in bench_fit), noise sd 0.002 "
-            "per reading; truth K, S: RIT table, PCHIP to 1 nm",
-            "coarser fits: K and S resampled linearly to 1 nm before predicting; closed form = black_white "
-            "on the X2 pair only (no joint fit)",
-            "Delta E 2000: D65, CIE 1931 2 degree observer, colour.sd_to_XYZ (ASTM E308) on the 1 nm "
-            "predictions",
-        ],
-    )]
+        rows.append(
+            [
+                r.method,
+                f"{r.step} nm",
+                f"{median_ms:.2f}",
+                f"{reference_ms / median_ms:.1f}",
+                "" if r.evaluations is None else f"{np.median(r.evaluations):.0f}",
+                f"{np.median(r.dE_reference):.3f}",
+                f"{np.percentile(r.dE_reference, 95):.3f}",
+                f"{r.dE_reference.max():.3f}",
+                f"{np.median(r.dE_truth):.3f}",
+                f"{np.percentile(r.dE_truth, 95):.3f}",
+            ]
+        )
+    return [
+        Table(
+            "Wavelength grid of the fit: speed vs accuracy (predictions at 1 nm, 380-780 nm)",
+            [
+                "method",
+                "grid",
+                "ms/sample",
+                "x faster than 1 nm fit",
+                "evaluations",
+                "dE00 vs 1 nm fit median",
+                "p95",
+                "max",
+                "dE00 vs truth median",
+                "p95",
+            ],
+            rows,
+            [
+                f"{results['n_samples']} samples x 6 measurements (as in bench_fit), noise sd 0.002 "
+                "per reading; truth K, S: RIT table, PCHIP to 1 nm",
+                "coarser fits: K and S resampled linearly to 1 nm before predicting; closed form = black_white "
+                "on the X2 pair only (no joint fit)",
+                "Delta E 2000: D65, CIE 1931 2 degree observer, colour.sd_to_XYZ (ASTM E308) on the 1 nm predictions",
+            ],
+        )
+    ]
 
 
 def main() -> None:

@@ -44,8 +44,8 @@ from common import (
     wavelength_grid,
 )
 
-from kmpipe.inversion import black_white, curtis, two_constant
-from kmpipe.kubelka_munk import film_over_background, film_reflectance_transmittance, reflectance_infinite
+from kmpipe.physics.inversion import black_white, curtis, two_constant
+from kmpipe.physics.kubelka_munk import film_over_background, film_reflectance_transmittance, reflectance_infinite
 
 N_SPECTRA = 100_000
 LOOP_VALUES = 20_000
@@ -283,18 +283,31 @@ def run(n_spectra: int = N_SPECTRA, repeats: int = 3, loop_values: int = LOOP_VA
         problem.fill(buffers, "cards", noisy=noisy)
         Rb, Rw, Ri = buffers
         sample = {name: array[rows, cols].tolist() for name, array in (("Rb", Rb), ("Rw", Rw), ("Ri", Ri))}
-        measure("black_white", data, lambda: black_white(Rb, Rw, Gb, Gw, X),  # noqa: B023
-                loop_black_white if noisy else None,
-                (sample["Rb"], sample["Rw"], Gb[cols].tolist(), Gw[cols].tolist(), X_sample))
-        measure("two_constant", data, lambda: two_constant(Ri, Rb, Gb, X),  # noqa: B023
-                loop_two_constant if noisy else None,
-                (sample["Ri"], sample["Rb"], Gb[cols].tolist(), X_sample))
+        measure(
+            "black_white",
+            data,
+            lambda: black_white(Rb, Rw, Gb, Gw, X),  # noqa: B023
+            loop_black_white if noisy else None,
+            (sample["Rb"], sample["Rw"], Gb[cols].tolist(), Gw[cols].tolist(), X_sample),
+        )
+        measure(
+            "two_constant",
+            data,
+            lambda: two_constant(Ri, Rb, Gb, X),  # noqa: B023
+            loop_two_constant if noisy else None,
+            (sample["Ri"], sample["Rb"], Gb[cols].tolist(), X_sample),
+        )
     for noisy in (True, False):
         data = "noisy" if noisy else "noise-free"
         problem.fill(buffers, "ideal", noisy=noisy)
         R0, R1 = buffers[0], buffers[1]
-        measure("curtis", data, lambda: curtis(R0, R1, X),  # noqa: B023
-                loop_curtis if noisy else None, (R0[rows, cols].tolist(), R1[rows, cols].tolist(), X_sample))
+        measure(
+            "curtis",
+            data,
+            lambda: curtis(R0, R1, X),  # noqa: B023
+            loop_curtis if noisy else None,
+            (R0[rows, cols].tolist(), R1[rows, cols].tolist(), X_sample),
+        )
     floor = min(floors)
     for timing in timings:
         timing.floor_seconds = floor
@@ -315,21 +328,26 @@ def run(n_spectra: int = N_SPECTRA, repeats: int = 3, loop_values: int = LOOP_VA
         call()
         profiles[method] = _profile(call)
     stages = {
-        "black_white": _stages("black_white", call=calls["black_white"], inputs=(Rb, Rw, Gb, Gw, Xp),
-                               repeats=repeats),
-        "two_constant": _stages("two_constant", call=calls["two_constant"], inputs=(Ri, Rb, Gb, Xp),
-                                repeats=repeats),
+        "black_white": _stages("black_white", call=calls["black_white"], inputs=(Rb, Rw, Gb, Gw, Xp), repeats=repeats),
+        "two_constant": _stages("two_constant", call=calls["two_constant"], inputs=(Ri, Rb, Gb, Xp), repeats=repeats),
     }
-    info = {"spectra": shape[0], "wavelengths": shape[1], "values": values, "floor_seconds": floor,
-            "peak_rss_mib": peak, "loop_values": loop_values, "repeats": repeats,
-            "profiled_spectra": rows_profiled.stop}
+    info = {
+        "spectra": shape[0],
+        "wavelengths": shape[1],
+        "values": values,
+        "floor_seconds": floor,
+        "peak_rss_mib": peak,
+        "loop_values": loop_values,
+        "repeats": repeats,
+        "profiled_spectra": rows_profiled.stop,
+    }
     return {"timings": timings, "accuracy": accuracy, "profile": profiles, "stages": stages, "info": info}
 
 
 def _stages(method: str, call, inputs, repeats: int) -> list[tuple[str, float]] | None:
     """Seconds spent in each stage of the current kmpipe implementation of ``method``, or None.
 
-    Mirrors the blockwise structure of kmpipe.inversion (inputs broadcast and seen as rows of the last axis,
+    Mirrors the blockwise structure of kmpipe.physics.inversion (inputs broadcast and seen as rows of the last axis,
     a lean regular path per cache-sized block of rows, the irregular elements gathered and redone by a
     careful path). It uses kmpipe's private ``_BLOCK``, ``_<method>_regular`` and ``_<method>_careful``
     (with or without output arguments K, S, ks) and gives None when the implementation no longer fits that
@@ -338,7 +356,7 @@ def _stages(method: str, call, inputs, repeats: int) -> list[tuple[str, float]] 
     """
     import inspect
 
-    import kmpipe.inversion as inversion
+    import kmpipe.physics.inversion as inversion
 
     regular = getattr(inversion, f"_{method}_regular", None)
     careful = getattr(inversion, f"_{method}_careful", None)
@@ -364,9 +382,9 @@ def _stages(method: str, call, inputs, repeats: int) -> list[tuple[str, float]] 
             """The block loop up to: 1 regular path, 2 + gather irregular, 3 + careful path."""
             irregular_count[0] = 0
             for lo in range(0, count, step):
-                parts = [r[lo:lo + step] for r in rows]
+                parts = [r[lo : lo + step] for r in rows]
                 if writes_outputs:
-                    mask = regular(*parts, tolerance, *(o[lo:lo + step] for o in outputs))
+                    mask = regular(*parts, tolerance, *(o[lo : lo + step] for o in outputs))
                 else:
                     mask = regular(*parts, tolerance)[3]
                 if level >= 2 and mask.any():
@@ -418,18 +436,23 @@ def tables(results: dict) -> list[Table]:
     speed_rows = []
     for t in results["timings"]:
         loop = t.loop_ratio
-        missed = [name for name, ok in (("floor", t.floor_ratio <= FLOOR_TARGET),
-                                        ("loop", loop is None or loop >= LOOP_TARGET)) if not ok]
-        speed_rows.append([
-            t.method,
-            t.data,
-            f"{t.seconds:.3f}",
-            f"{t.rate / 1e6:.1f}",
-            f"{t.floor_ratio:.1f}",
-            "" if loop is None else f"{loop:.0f}",
-            f"{100 * t.flagged:.2f}",
-            "yes" if not missed else "no (" + ", ".join(missed) + ")",
-        ])
+        missed = [
+            name
+            for name, ok in (("floor", t.floor_ratio <= FLOOR_TARGET), ("loop", loop is None or loop >= LOOP_TARGET))
+            if not ok
+        ]
+        speed_rows.append(
+            [
+                t.method,
+                t.data,
+                f"{t.seconds:.3f}",
+                f"{t.rate / 1e6:.1f}",
+                f"{t.floor_ratio:.1f}",
+                "" if loop is None else f"{loop:.0f}",
+                f"{100 * t.flagged:.2f}",
+                "yes" if not missed else "no (" + ", ".join(missed) + ")",
+            ]
+        )
     loop_notes = [
         f"{t.method}: plain loop {1e9 * t.loop_seconds_per_value:.0f} ns/value "
         f"({1e-6 / t.loop_seconds_per_value:.2f} M values/s); loop vs vectorized at unflagged values: "
@@ -440,8 +463,16 @@ def tables(results: dict) -> list[Table]:
     speed = Table(
         f"Closed-form inversion speed: {info['spectra']:,} spectra x {info['wavelengths']} wavelengths "
         f"= {info['values'] / 1e6:.1f} M values",
-        ["method", "readings", "time (s)", "M values/s", "x log1p floor (<= 10)", "x loop speed-up (>= 100)",
-         "flagged %", "targets met"],
+        [
+            "method",
+            "readings",
+            "time (s)",
+            "M values/s",
+            "x log1p floor (<= 10)",
+            "x loop speed-up (>= 100)",
+            "flagged %",
+            "targets met",
+        ],
         speed_rows,
         [
             f"floor: one numpy.log1p pass over {info['values'] / 1e6:.1f} M values into a new array, "
@@ -461,8 +492,14 @@ def tables(results: dict) -> list[Table]:
         "Closed-form inversion accuracy (noise-free readings, unflagged values): relative error vs truth",
         ["method", "unflagged %", "K median", "K 99th pct", "S median", "S 99th pct"],
         [
-            [a.method, f"{100 * a.unflagged:.2f}", sig(a.K_median, 2), sig(a.K_p99, 2), sig(a.S_median, 2),
-             sig(a.S_p99, 2)]
+            [
+                a.method,
+                f"{100 * a.unflagged:.2f}",
+                sig(a.K_median, 2),
+                sig(a.K_p99, 2),
+                sig(a.S_median, 2),
+                sig(a.S_p99, 2),
+            ]
             for a in results["accuracy"]
         ],
         [],
@@ -470,28 +507,39 @@ def tables(results: dict) -> list[Table]:
     profile_tables = []
     for method, entries in results["profile"].items():
         total = max(entry[3] for entry in entries) if entries else 1.0
-        profile_tables.append(Table(
-            f"cProfile of one {method} call (noisy readings, {info['profiled_spectra']:,} spectra, after a "
-            "warm-up call), top entries by own time",
-            ["function", "calls", "own s", "cumulative s", "own % of call"],
-            [[name, str(calls), f"{own:.3f}", f"{cumulative:.3f}", f"{100 * own / total:.0f}"]
-             for name, calls, own, cumulative in entries],
-            ["cProfile does not see numpy ufuncs: their time is the own time of the function calling them"],
-        ))
+        profile_tables.append(
+            Table(
+                f"cProfile of one {method} call (noisy readings, {info['profiled_spectra']:,} spectra, after a "
+                "warm-up call), top entries by own time",
+                ["function", "calls", "own s", "cumulative s", "own % of call"],
+                [
+                    [name, str(calls), f"{own:.3f}", f"{cumulative:.3f}", f"{100 * own / total:.0f}"]
+                    for name, calls, own, cumulative in entries
+                ],
+                ["cProfile does not see numpy ufuncs: their time is the own time of the function calling them"],
+            )
+        )
     floor_per_value = info["floor_seconds"] / info["values"]
     for method, stages in results["stages"].items():
         if stages is None:
             continue
         values = info["profiled_spectra"] * info["wavelengths"]
-        profile_tables.append(Table(
-            f"Where {method} spends its time (noisy readings, {info['profiled_spectra']:,} spectra)",
-            ["stage", "ns/value", "x log1p floor"],
-            [[name, f"{1e9 * seconds / values:.1f}", f"{seconds / values / floor_per_value:.1f}"]
-             for name, seconds in stages],
-            ["stages: differences between best-of-3 times of the public call's block loop rebuilt from "
-             "kmpipe.inversion's private functions and cut after each stage; floor from the full-size log1p "
-             "pass"],
-        ))
+        profile_tables.append(
+            Table(
+                f"Where {method} spends its time (noisy readings, {info['profiled_spectra']:,} spectra)",
+                ["stage", "ns/value", "x log1p floor"],
+                [
+                    [name, f"{1e9 * seconds / values:.1f}", f"{seconds / values / floor_per_value:.1f}"]
+                    for name, seconds in stages
+                ],
+                [
+                    "stages: differences between best-of-3 times of the public call's block loop rebuilt from "
+                    "kmpipe.physics.inversion's private functions and cut after each stage; floor from the "
+                    "full-size log1p "
+                    "pass"
+                ],
+            )
+        )
     return [speed, accuracy, *profile_tables]
 
 

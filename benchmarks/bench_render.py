@@ -18,8 +18,8 @@ from pathlib import Path
 from common import REPO, Table
 
 from kmpipe.cli import main as kmpipe_main
-from kmpipe.render import plan_scene, render_scene
-from kmpipe.scene import load_scene
+from kmpipe.formats.scene import load_scene
+from kmpipe.stages.render import plan_scene, render_scene
 
 FRAMES = 36
 MODES = ("rgb", "bands:6", "bands:12", "exact")
@@ -80,19 +80,31 @@ def run() -> list[list[str]]:
                 start = time.perf_counter()
                 render_scene(scene, folder / scene.stem, echo=lambda _: None)
                 seconds = time.perf_counter() - start
-                rows.append([mode, f"{size} x {size}", f"{seconds:.2f}", f"{FRAMES / seconds:.1f}",
-                             f"{chosen.max_dE:.3f}", "yes" if size != 512 or seconds < 10.0 else "no"])
+                rows.append(
+                    [
+                        mode,
+                        f"{size} x {size}",
+                        f"{seconds:.2f}",
+                        f"{FRAMES / seconds:.1f}",
+                        f"{chosen.max_dE:.3f}",
+                        "yes" if size != 512 or seconds < 10.0 else "no",
+                    ]
+                )
     return rows
 
 
 def tables(rows: list[list[str]]) -> list[Table]:
-    return [Table(
-        f"Turntable rendering: {FRAMES} frames of F1 on the compact pan (EXR + PNG written per frame)",
-        ["mode", "resolution", "s", "frames/s", "dE00 vs exact (this scene)", "512 target (< 10 s) met"],
-        rows,
-        ["llvmpipe (OSMesa) on the CPU; times include writing both files per frame",
-         "Delta E 2000 of the mode against exact on the scene's own stack, as the planner measures it"],
-    )]
+    return [
+        Table(
+            f"Turntable rendering: {FRAMES} frames of F1 on the compact pan (EXR + PNG written per frame)",
+            ["mode", "resolution", "s", "frames/s", "dE00 vs exact (this scene)", "512 target (< 10 s) met"],
+            rows,
+            [
+                "llvmpipe (OSMesa) on the CPU; times include writing both files per frame",
+                "Delta E 2000 of the mode against exact on the scene's own stack, as the planner measures it",
+            ],
+        )
+    ]
 
 
 def main() -> None:

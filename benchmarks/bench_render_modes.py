@@ -3,7 +3,7 @@
 All 19 RIT paints (see :mod:`common`; here K and S x 60 per mm, i.e. ``load_pigments`` x 6) on the table's
 380-750 nm / 10 nm grid, as single layers and as 2-layer stacks (every ordered pair) over the ColorChecker
 N Ohta "light skin" patch, under D65, each layer at 10, 25 and 40 um. Errors are from
-:func:`kmpipe.optical_tables.mode_error` (tables at exactly those thicknesses: the mode's own error).
+:func:`kmpipe.physics.optical_tables.mode_error` (tables at exactly those thicknesses: the mode's own error).
 
 Run alone: ``.venv/bin/python benchmarks/bench_render_modes.py``.
 """
@@ -16,8 +16,8 @@ import colour
 import numpy as np
 from common import Table, load_pigments
 
-from kmpipe.optical_tables import OpticalTable, Stack, band_partition, mode_error, working_space
-from kmpipe.render_plan import DEFAULT_TARGET_DE, plan_render
+from kmpipe.physics.optical_tables import OpticalTable, Stack, band_partition, mode_error, working_space
+from kmpipe.stages.render_plan import DEFAULT_TARGET_DE, plan_render
 from renderer.layers import MAX_CHANNELS
 
 MODES = ("rgb", "bands:3", "bands:6", "bands:9", "bands:12")
@@ -64,8 +64,9 @@ def run() -> list[list[str]]:
         e = np.concatenate(errors)
         modes, counts = np.unique(chosen, return_counts=True)
         picked = ", ".join(f"{m} x{c}" for m, c in sorted(zip(modes, counts, strict=True), key=lambda mc: -mc[1]))
-        rows.append([f"default ({picked})", label, f"{e.mean():.3f}", f"{np.percentile(e, 95):.3f}",
-                     f"{e.max():.3f}", "-"])
+        rows.append(
+            [f"default ({picked})", label, f"{e.mean():.3f}", f"{np.percentile(e, 95):.3f}", f"{e.max():.3f}", "-"]
+        )
     return rows
 
 
@@ -76,9 +77,10 @@ def tables(rows: list[list[str]]) -> list[Table]:
             ["mode", "stacks", "dE00 mean", "p95", "max", "ms to build 19 tables x 65 thicknesses"],
             rows,
             [
-                "errors from kmpipe.optical_tables.mode_error: tables at exactly the probe thicknesses (the mode's own "
+                "errors from kmpipe.physics.optical_tables.mode_error: tables at exactly the probe "
+                "thicknesses (the mode's own "
                 "error, no interpolation)",
-                "the planner (kmpipe.render_plan) picks the cheapest mode whose worst error "
+                "the planner (kmpipe.stages.render_plan) picks the cheapest mode whose worst error "
                 "on the scene's own stacks meets its target",
                 f"default: each stack planned as its own scene with the default target (max dE00 {DEFAULT_TARGET_DE}); "
                 "target from the issue: mean dE00 of the default mode against exact below 0.5",

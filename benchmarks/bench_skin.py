@@ -27,8 +27,8 @@ import numpy as np
 from common import REPO, Table
 
 from kmpipe.cli import main as kmpipe_main
-from kmpipe.render import _lights, _stack_input, camera_for, layer_lobes, plan_scene, skin_lobe, skin_scattering
-from kmpipe.scene import load_scene
+from kmpipe.formats.scene import load_scene
+from kmpipe.stages.render import _lights, _stack_input, camera_for, layer_lobes, plan_scene, skin_lobe, skin_scattering
 
 SIZES = (512, 1024)
 REPEATS = 5
@@ -102,8 +102,17 @@ def tables(rows: list[list[str]]) -> list[Table]:
     return [
         Table(
             "Makeup on skin: subsurface scattering against the rest of the frame (F1 + B1 + L1 via the cosmetic map)",
-            ["scene", "resolution", "covered pixels", "frame without SSS, ms", "SSS passes, ms", "frame with SSS, ms",
-             "SSS share", "mode", "512 target (< 0.3 s) met"],
+            [
+                "scene",
+                "resolution",
+                "covered pixels",
+                "frame without SSS, ms",
+                "SSS passes, ms",
+                "frame with SSS, ms",
+                "SSS share",
+                "mode",
+                "512 target (< 0.3 s) met",
+            ],
             rows,
             [
                 "llvmpipe (OSMesa) on the CPU; median of 5 frames after a warm-up; times include shadow maps, the "

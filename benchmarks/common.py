@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kmpipe.kubelka_munk import film_over_background, film_reflectance_transmittance, reflectance_infinite
+from kmpipe.physics.kubelka_munk import film_over_background, film_reflectance_transmittance, reflectance_infinite
 
 REPO = Path(__file__).resolve().parent.parent
 PIGMENT_TABLE = Path("/work/shared/data/pigments/rit_golden_acrylic_ks.csv")
@@ -81,6 +81,7 @@ def load_pigments(wavelengths: np.ndarray, kind: str = "linear") -> Pigments:
     names = tuple(dict.fromkeys(name for name, _ in values))
     w = np.clip(np.asarray(wavelengths, dtype=np.float64), table_wavelengths[0], table_wavelengths[-1])
     if kind == "linear":
+
         def interpolate(v):
             return np.interp(w, table_wavelengths, v)
     elif kind == "pchip":
@@ -127,8 +128,7 @@ def card_white(wavelengths: np.ndarray) -> np.ndarray:
     return 0.86 - 0.10 * np.exp(-(w - 380.0) / 30.0)
 
 
-def over_backgrounds(K, S, X, backgrounds: Sequence, out: Sequence[np.ndarray] | None = None,
-                     chunk: int = 4096):
+def over_backgrounds(K, S, X, backgrounds: Sequence, out: Sequence[np.ndarray] | None = None, chunk: int = 4096):
     """Readings of films (K, S rows; X (rows, 1) mm) over each background, in chunks of rows (bounded memory).
 
     Each background is an array broadcastable to a row of K (e.g. (n,)). ``out``: preallocated arrays like K.
@@ -293,8 +293,8 @@ def machine() -> dict[str, str]:
         "colour-science": _colour().__version__,
         "OPENBLAS_CORETYPE": os.environ.get("OPENBLAS_CORETYPE", "(unset)"),
         "load average at start (1, 5, 15 min)": " ".join(f"{v:.2f}" for v in os.getloadavg()),
-        "kmpipe/inversion.py sha256": digest("kmpipe/inversion.py"),
-        "kmpipe/joint_fit.py sha256": digest("kmpipe/joint_fit.py"),
+        "kmpipe/physics/inversion.py sha256": digest("kmpipe/physics/inversion.py"),
+        "kmpipe/physics/joint_fit.py sha256": digest("kmpipe/physics/joint_fit.py"),
     }
     return info
 

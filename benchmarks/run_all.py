@@ -31,49 +31,101 @@ def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, ski
     for t in inversion["timings"]:
         if t.data != "noisy":
             continue
-        rows.append([f"{t.method}: time / log1p floor", "<= 10", f"{t.floor_ratio:.1f}",
-                     "yes" if t.floor_ratio <= bench_inversion.FLOOR_TARGET else "no"])
-        rows.append([f"{t.method}: speed-up over a Python loop", ">= 100", f"{t.loop_ratio:.0f}",
-                     "yes" if t.loop_ratio >= bench_inversion.LOOP_TARGET else "no"])
+        rows.append(
+            [
+                f"{t.method}: time / log1p floor",
+                "<= 10",
+                f"{t.floor_ratio:.1f}",
+                "yes" if t.floor_ratio <= bench_inversion.FLOOR_TARGET else "no",
+            ]
+        )
+        rows.append(
+            [
+                f"{t.method}: speed-up over a Python loop",
+                ">= 100",
+                f"{t.loop_ratio:.0f}",
+                "yes" if t.loop_ratio >= bench_inversion.LOOP_TARGET else "no",
+            ]
+        )
     for v in fit["variants"]:
         median_ms = float(np.median(v.times_ms))
-        rows.append([f"joint fit ({v.name}): ms per sample", "<= 50", f"{median_ms:.1f}",
-                     "yes" if median_ms <= bench_fit.TARGET_MS else "no"])
+        rows.append(
+            [
+                f"joint fit ({v.name}): ms per sample",
+                "<= 50",
+                f"{median_ms:.1f}",
+                "yes" if median_ms <= bench_fit.TARGET_MS else "no",
+            ]
+        )
     turntable = max(float(r[2]) for r in render_rows if r[1] == "512 x 512")
-    rows.append(["36-frame turntable at 512 x 512, slowest mode: s", "< 10", f"{turntable:.1f}",
-                 "yes" if turntable < 10.0 else "no"])
+    rows.append(
+        [
+            "36-frame turntable at 512 x 512, slowest mode: s",
+            "< 10",
+            f"{turntable:.1f}",
+            "yes" if turntable < 10.0 else "no",
+        ]
+    )
     for r in mode_rows:
         if r[0].startswith("default"):
-            rows.append([f"default render mode, mean dE00 against exact ({r[1]})", "< 0.5", r[2],
-                         "yes" if float(r[2]) < 0.5 else "no"])
+            rows.append(
+                [
+                    f"default render mode, mean dE00 against exact ({r[1]})",
+                    "< 0.5",
+                    r[2],
+                    "yes" if float(r[2]) < 0.5 else "no",
+                ]
+            )
     for r in skin_rows:
         if r[1] == "512 x 512":
             seconds = float(r[5]) / 1e3
-            rows.append([f"frame on skin, 3 layers, shadows, SSS at 512 x 512 ({r[0]}): s", "< 0.3", f"{seconds:.3f}",
-                         "yes" if seconds < bench_skin.TARGET_S else "no"])
+            rows.append(
+                [
+                    f"frame on skin, 3 layers, shadows, SSS at 512 x 512 ({r[0]}): s",
+                    "< 0.3",
+                    f"{seconds:.3f}",
+                    "yes" if seconds < bench_skin.TARGET_S else "no",
+                ]
+            )
     for r in run_rows:
         rows.append([f"demo line end to end ({r[0]}): s", "< 120", r[2], r[5]])
         rows.append([f"demo line, cached re-run ({r[0]}): s", "< 3", r[4], r[6]])
-    return Table("Targets", ["quantity", "target", "measured", "met"], rows,
-                 ["inversion and fit rows on noisy readings"])
+    return Table(
+        "Targets", ["quantity", "target", "measured", "met"], rows, ["inversion and fit rows on noisy readings"]
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spectra", type=int, default=bench_inversion.N_SPECTRA,
-                        help="spectra in the inversion benchmark (default %(default)s)")
-    parser.add_argument("--samples", type=int, default=bench_fit.N_SAMPLES,
-                        help="samples in the joint fit benchmark (default %(default)s)")
-    parser.add_argument("--grid-samples", type=int, default=bench_fit_grid.N_SAMPLES,
-                        help="samples in the wavelength grid benchmark (default %(default)s)")
+    parser.add_argument(
+        "--spectra",
+        type=int,
+        default=bench_inversion.N_SPECTRA,
+        help="spectra in the inversion benchmark (default %(default)s)",
+    )
+    parser.add_argument(
+        "--samples",
+        type=int,
+        default=bench_fit.N_SAMPLES,
+        help="samples in the joint fit benchmark (default %(default)s)",
+    )
+    parser.add_argument(
+        "--grid-samples",
+        type=int,
+        default=bench_fit_grid.N_SAMPLES,
+        help="samples in the wavelength grid benchmark (default %(default)s)",
+    )
     parser.add_argument("--output", type=Path, default=REPO / "docs" / "benchmarks.md")
     arguments = parser.parse_args()
 
     started = time.perf_counter()
     info = machine()
     if os.getloadavg()[0] > 0.5:
-        print(f"note: 1-minute load average {os.getloadavg()[0]:.2f} at start; other work running now "
-              "slows the timings (the numbers assume an idle machine)", file=sys.stderr)
+        print(
+            f"note: 1-minute load average {os.getloadavg()[0]:.2f} at start; other work running now "
+            "slows the timings (the numbers assume an idle machine)",
+            file=sys.stderr,
+        )
     parts: list[tuple[str, list[Table], float]] = []
 
     def measure(title: str, module, *args):

@@ -97,8 +97,9 @@ class SessionLog:
         The header line written for this connection.
     """
 
-    def __init__(self, path: str | os.PathLike[str], *, port: str, meta: dict[str, Any] | None = None,
-                 fsync: bool = False) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], *, port: str, meta: dict[str, Any] | None = None, fsync: bool = False
+    ) -> None:
         self.path = Path(path)
         self._fsync = fsync
         resumed = self.path.exists() and self.path.stat().st_size > 0
@@ -107,8 +108,13 @@ class SessionLog:
         self._file = self.path.open("a", encoding="ascii", newline="\n")
         self._t0 = time.monotonic()
         started = datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-        self.header = {"kmpipe_session_log": FORMAT_VERSION, "port": port, "started": started,
-                       "resumed": resumed, "meta": dict(meta or {})}
+        self.header = {
+            "kmpipe_session_log": FORMAT_VERSION,
+            "port": port,
+            "started": started,
+            "resumed": resumed,
+            "meta": dict(meta or {}),
+        }
         if resumed and not self._ends_with_newline():
             self._file.write("\n")  # a line cut short by a crash must not swallow the new header
         self._write(self.header)
@@ -228,8 +234,10 @@ class RecordingSerial(SerialBase):
         if self.is_open:
             raise SerialException("Port is already open.")
         if self._log.closed:
-            raise SerialException(f"the session log {self._log.path} is closed: record the new connection with a "
-                                  "new SessionLog (it appends a resumed header)")
+            raise SerialException(
+                f"the session log {self._log.path} is closed: record the new connection with a "
+                "new SessionLog (it appends a resumed header)"
+            )
         if not self._serial.is_open:
             self._serial.open()
         self.is_open = True
@@ -365,8 +373,14 @@ class RecordingSerial(SerialBase):
         self._serial.reset_output_buffer()
 
 
-def open_recorded(url: str, log_path: str | os.PathLike[str], *, meta: dict[str, Any] | None = None,
-                  fsync: bool = False, **kwargs: Any) -> RecordingSerial:
+def open_recorded(
+    url: str,
+    log_path: str | os.PathLike[str],
+    *,
+    meta: dict[str, Any] | None = None,
+    fsync: bool = False,
+    **kwargs: Any,
+) -> RecordingSerial:
     """Open ``serial.serial_for_url(url, **kwargs)`` and record it to a :class:`SessionLog` at ``log_path``.
 
     ``meta`` and ``fsync`` go to the SessionLog (header metadata; fsync after every line); every other keyword
@@ -442,8 +456,9 @@ def _parse_event(entry: dict[str, Any], line: int, where: str) -> LogEvent:
         try:
             data = decode_bytes(text)
         except UnicodeEncodeError as err:
-            raise SessionLogError(f"{where}: 'data' holds {text[err.start]!r}, above U+00FF (one code point is "
-                                  "one byte)") from None
+            raise SessionLogError(
+                f"{where}: 'data' holds {text[err.start]!r}, above U+00FF (one code point is one byte)"
+            ) from None
     waited = _number(entry, "waited", where) if kind == "timeout" else 0.0
     return LogEvent(line=line, t=t, kind=kind, data=data, waited=waited)
 
@@ -472,8 +487,10 @@ def read_session_log(path: str | os.PathLike[str]) -> list[LogConnection]:
                 raise SessionLogError(f"{where}: expected a JSON object, got {type(entry).__name__}")
             if "kmpipe_session_log" in entry:
                 if entry["kmpipe_session_log"] != FORMAT_VERSION:
-                    raise SessionLogError(f"{where}: session log version {entry['kmpipe_session_log']!r}, this "
-                                          f"reader knows {FORMAT_VERSION}")
+                    raise SessionLogError(
+                        f"{where}: session log version {entry['kmpipe_session_log']!r}, this "
+                        f"reader knows {FORMAT_VERSION}"
+                    )
                 if header is not None:
                     connections.append(LogConnection(header_line, header, tuple(events)))
                 header_line, header, events = number, entry, []

@@ -19,10 +19,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from kmpipe import __version__, files
+from kmpipe import __version__
 from kmpipe.errors import InputError
-from kmpipe.flags import Flag
-from kmpipe.manifest import MAX_SMOOTHNESS, METHODS, parse_grid
+from kmpipe.formats import files
+from kmpipe.formats.manifest import MAX_SMOOTHNESS, METHODS, parse_grid
+from kmpipe.physics.flags import Flag
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 70
 #: Errors of the user's file system, not of kmpipe: a path named too long, a loop of links, no permission, a full
@@ -73,7 +74,7 @@ def _grid_arg(text: str) -> str:
 
 
 def _summary_table(materials: list[tuple[Path, object]]) -> Table:
-    from kmpipe.material import Material
+    from kmpipe.formats.material import Material
 
     first: Material = materials[0][1]
     spectral = first.wavelengths is not None
@@ -109,9 +110,9 @@ def _summary_table(materials: list[tuple[Path, object]]) -> Table:
 
 
 def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.fitting import fit_sample, provenance
-    from kmpipe.material import write_material
-    from kmpipe.sample import load_sample
+    from kmpipe.formats.material import write_material
+    from kmpipe.formats.sample import load_sample
+    from kmpipe.stages.fit import fit_sample, provenance
 
     to_folder = len(args.manifest) > 1 or args.output.is_dir()
     if to_folder and args.output.exists() and not args.output.is_dir():
@@ -159,8 +160,8 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid, write_spectra_csv
-    from kmpipe.white import ReadingSource, certified_file, certified_reflectance, radiance_to_reflectance
+    from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid, write_spectra_csv
+    from kmpipe.physics.white import ReadingSource, certified_file, certified_reflectance, radiance_to_reflectance
 
     def column_ref(text: str, option: str) -> tuple[Path, str]:
         file, sep, column = text.rpartition(":")
@@ -196,6 +197,7 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
     white = reference(args.white, "--white")
     dark = reference(args.dark, "--dark") if args.dark else None
     certified = certified_reflectance(args.certified, grid, base_dir=Path.cwd())
+
     def source(column: str) -> ReadingSource:  # white, dark and sample may each come from another file
         return ReadingSource(white=args.white, dark=args.dark, samples=(f"{args.radiance}:{column}",),
                              labels=tuple(table.sample_labels))  # fmt: skip
@@ -221,7 +223,7 @@ def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
 
 def _material_files(target: Path) -> list[Path]:
     """MATERIAL.json itself, or every material JSON directly inside a folder."""
-    from kmpipe.material import FORMAT
+    from kmpipe.formats.material import FORMAT
 
     if target.is_dir():
         found = []
@@ -241,8 +243,8 @@ def _material_files(target: Path) -> list[Path]:
 
 
 def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.report import write_index, write_sample_report
-    from kmpipe.validation import Thresholds, report_to_dict, validate_material
+    from kmpipe.validation.checks import Thresholds, report_to_dict, validate_material
+    from kmpipe.validation.report import write_index, write_sample_report
 
     materials = _material_files(args.material)
     if args.manifest is not None and len(materials) > 1:
@@ -311,7 +313,7 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.measure import run_session
+    from kmpipe.stages.measure import run_session
 
     interactive = False if args.unattended else None
     run_session(
@@ -379,7 +381,7 @@ def _cmd_card(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.ingest_raw import ingest_raw
+    from kmpipe.stages.ingest_raw import ingest_raw
 
     files.output_folder(args.output, create=False)
     if args.name is not None:
@@ -476,7 +478,7 @@ def _progress(console: Console):
 
 
 def _cmd_render(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.render import render_scene
+    from kmpipe.stages.render import render_scene
 
     files.output_folder(args.output, create=False)
     with _progress(console) as progress:
@@ -497,14 +499,12 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     frames = [path for path in written if path.suffix == ".exr" and path.parent == args.output]
     console.print(f"wrote {len(frames)} frames (EXR and PNG) to {args.output}", highlight=False, markup=False)
     if args.ab_sss:
-        console.print(
-            f"wrote the A/B sheet {args.output / 'ab_sss.png'} (frames without SSS in no_sss/)", markup=False
-        )
+        console.print(f"wrote the A/B sheet {args.output / 'ab_sss.png'} (frames without SSS in no_sss/)", markup=False)
     return EXIT_OK
 
 
 def _cmd_run(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.run import execute, plan_run
+    from kmpipe.run.graph import execute, plan_run
 
     out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
     plan = plan_run(args.recipe, out_dir, only=args.only or (), keep_going=args.keep_going)
@@ -724,7 +724,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Plan the optical tables of the scene's films, render each frame (a turntable when the scene "
         "has one) with the Kubelka-Munk layer pass and write frame_NNN.exr (linear) and frame_NNN.png (sRGB).",
     )
-    render.add_argument("scene", type=Path, help="scene file, TOML (docs in kmpipe/scene.py)")
+    render.add_argument("scene", type=Path, help="scene file, TOML (docs in kmpipe/formats/scene.py)")
     render.add_argument("-o", "--output", type=Path, required=True, help="folder for the frames")
     render.add_argument("--explain", action="store_true", help="print the render plan: modes tried, chosen, tables")
     render.add_argument("--no-sss", action="store_true", help="on skin: no subsurface scattering")

@@ -41,4 +41,3 @@ def head_makeup(rows: int = 512, columns: int = 512) -> np.ndarray:
     lips_radius = np.sqrt(((u - 0.5) / 0.045) ** 2 + ((v - 0.31) / 0.016) ** 2)
     lips = 1.0 - _smoothstep(1.0 - 0.004 / 0.016, 1.0, lips_radius)
     return np.clip(np.stack([face, cheeks, lips], axis=-1), 0.0, 1.0)
-

@@ -39,9 +39,7 @@ class Framebuffer:
         self.fbo = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         for index, colour in enumerate(self.colours):
-            GL.glFramebufferTexture2D(
-                GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + index, GL.GL_TEXTURE_2D, colour, 0
-            )
+            GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + index, GL.GL_TEXTURE_2D, colour, 0)
         GL.glDrawBuffers(targets, [GL.GL_COLOR_ATTACHMENT0 + index for index in range(targets)])
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self.depth)
         status = GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER)

@@ -446,9 +446,7 @@ class SurfacePass:
         self.props = list(props)
         for prop in self.props:
             albedo = np.asarray(prop.albedo, dtype=float)
-            if albedo.shape != (3,) or not (
-                np.all(np.isfinite(albedo)) and 0.0 <= albedo.min() <= albedo.max() <= 1.0
-            ):
+            if albedo.shape != (3,) or not (np.all(np.isfinite(albedo)) and 0.0 <= albedo.min() <= albedo.max() <= 1.0):
                 raise ValueError(f"a prop's albedo must be linear RGB in [0, 1], got {prop.albedo}")
         self.draws = [(mesh, self.model)] + [
             (p.mesh, np.eye(4) if p.model is None else np.asarray(p.model, float)) for p in self.props

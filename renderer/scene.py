@@ -59,6 +59,7 @@ class OrthographicCamera(_Pose):
     """
 
     half_height: float
+
     def projection_matrix(self, aspect: float) -> np.ndarray:
         """Camera -> clip matrix (4, 4) for an image of ``aspect`` = width / height (pixels)."""
         top, right = self.half_height, self.half_height * aspect
@@ -78,6 +79,7 @@ class PerspectiveCamera(_Pose):
     """A pinhole camera with a vertical field of view ``fov_y_deg`` (degrees); ``near``/``far`` in mm (> 0)."""
 
     fov_y_deg: float
+
     def projection_matrix(self, aspect: float) -> np.ndarray:
         """Camera -> clip matrix (4, 4) for an image of ``aspect`` = width / height (pixels)."""
         focal = 1.0 / np.tan(np.radians(self.fov_y_deg) / 2.0)

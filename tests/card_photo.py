@@ -16,9 +16,9 @@ import numpy as np
 from dng_fixtures import mosaic, write_dng
 
 from instruments.drawdown_card import Layout, render_card
-from kmpipe.colorimetry import reflectance_to_XYZ
-from kmpipe.kubelka_munk import reflectance_over_background
-from kmpipe.manifest import parse_thickness_mm
+from kmpipe.formats.manifest import parse_thickness_mm
+from kmpipe.physics.colorimetry import reflectance_to_XYZ
+from kmpipe.physics.kubelka_munk import reflectance_over_background
 
 PX_PER_MM = 6.0
 

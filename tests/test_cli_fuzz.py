@@ -183,9 +183,10 @@ def test_fit_on_broken_manifests_and_spectra(target, breakage):
         argv = ["fit", work / "manifest.toml", "-o", work / "out" / "F1.json", "--grid", "400:700:20"]
         status, _ = assert_well_behaved(argv, work, work / "out", work / target)
         if status == 0:
-            assert "NaN" not in (work / "out" / "F1.json").read_text() and "Infinity" not in (
-                work / "out" / "F1.json"
-            ).read_text()
+            assert (
+                "NaN" not in (work / "out" / "F1.json").read_text()
+                and "Infinity" not in (work / "out" / "F1.json").read_text()
+            )
 
 
 @FUZZ_SLOW
@@ -343,8 +344,15 @@ def _commands(work: Path, out: Path) -> dict[str, list]:
         "ingest": ["ingest", work / "F1.csv", "--white", f"{work / 'white.csv'}:baso4", "-o", out],
         "fit": ["fit", work / "manifest.toml", "-o", out, "--grid", "400:700:50"],
         "validate": ["validate", work / "F1.json", "-o", out],
-        "measure": ["measure", work / "plan.toml", "--port", f"replay://{work / 'F1.jsonl'}", "--unattended",
-                    "-o", out],
+        "measure": [
+            "measure",
+            work / "plan.toml",
+            "--port",
+            f"replay://{work / 'F1.jsonl'}",
+            "--unattended",
+            "-o",
+            out,
+        ],
         "card": ["card", "-o", out],
         "sheet": ["sheet", work / "compact_000.exr", "-o", out],
         "render": ["render", work / "scene.toml", "-o", out],
@@ -506,8 +514,11 @@ def test_render_never_writes_over_a_file_its_scene_reads(material, tmp_path):
     from renderer.image_io import write_png
 
     write_png(tmp_path / "frame_000.png", np.full((8, 8, 3), 0.5))
-    text = (tmp_path / "scene.toml").read_text().replace(
-        'thickness = "40 um"', 'thickness_map = { file = "frame_000.png", max = "40 um" }')
+    text = (
+        (tmp_path / "scene.toml")
+        .read_text()
+        .replace('thickness = "40 um"', 'thickness_map = { file = "frame_000.png", max = "40 um" }')
+    )
     (tmp_path / "scene.toml").write_text(text.replace('mesh = "compact"', 'mesh = "card"'))
     before = snapshot(tmp_path, tmp_path / "never")
     status, _, err = run_cli(["render", tmp_path / "scene.toml", "-o", tmp_path])

@@ -33,7 +33,7 @@ from instruments.colorchecker import (
 )
 from instruments.drawdown_card import Region, default_layout, locate_card, paper_illumination, sample_region
 from instruments.raw_photo import read_raw, tone_mapped_8bit
-from kmpipe.colour_correction import fit_camera_to_XYZ, reference_XYZ
+from kmpipe.physics.colour_correction import fit_camera_to_XYZ, reference_XYZ
 
 SCENE = Scene(
     backings={"black": np.array([0.040, 0.035, 0.030]), "white": np.array([0.86, 0.84, 0.80])},

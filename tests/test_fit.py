@@ -1,7 +1,8 @@
-"""Fitting K and S (kmpipe fit, kmpipe.fitting, kmpipe.joint_fit, kmpipe.material) against known truth.
+"""Fitting K and S (kmpipe fit, kmpipe.stages.fit, kmpipe.physics.joint_fit, kmpipe.formats.material) against known
+truth.
 
 Samples are simulated in a temporary folder from known K and S (Duncan mixtures of the RIT Golden acrylic
-table, scaled x60 to 1/mm) with the closed-form Kubelka-Munk forward model of ``kmpipe.kubelka_munk``
+table, scaled x60 to 1/mm) with the closed-form Kubelka-Munk forward model of ``kmpipe.physics.kubelka_munk``
 (itself checked against 50-digit arithmetic in test_kubelka_munk.py), written as reflectance CSVs with a
 manifest, and fitted through the command line. The fitted K and S are compared with the truth that made
 the readings; standard errors are checked by their coverage of the truth over many noisy repeats; the
@@ -22,14 +23,14 @@ import numpy as np
 import pytest
 
 from kmpipe import cli
-from kmpipe.fitting import fit_sample
-from kmpipe.joint_fit import _Model, _second_difference_penalty
-from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.material import read_material, write_material
-from kmpipe.sample import load_sample
-from kmpipe.saunderson import saunderson_forward
-from kmpipe.spectra import SpectralTable, read_spectra_csv, uniform_grid, write_spectra_csv
-from kmpipe.white import baso4_typical
+from kmpipe.formats.material import read_material, write_material
+from kmpipe.formats.sample import load_sample
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, uniform_grid, write_spectra_csv
+from kmpipe.physics.joint_fit import _Model, _second_difference_penalty
+from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+from kmpipe.physics.saunderson import saunderson_forward
+from kmpipe.physics.white import baso4_typical
+from kmpipe.stages.fit import fit_sample
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "recipes" / "samples"

@@ -34,10 +34,10 @@ import cv2
 import numpy as np
 import pytest
 
-from kmpipe.material import read_material
-from kmpipe.optical_tables import exact_rgb, working_space
-from kmpipe.render import GROUND_EXTENT, camera_for, plan_scene, turntable_model
-from kmpipe.scene import Scene, load_scene
+from kmpipe.formats.material import read_material
+from kmpipe.formats.scene import Scene, load_scene
+from kmpipe.physics.optical_tables import exact_rgb, working_space
+from kmpipe.stages.render import GROUND_EXTENT, camera_for, plan_scene, turntable_model
 from renderer.image_io import read_exr
 
 GOLDEN = Path(__file__).resolve().parent / "data" / "golden"
@@ -102,7 +102,9 @@ def placed_vertices(scene: Scene, model: np.ndarray) -> np.ndarray:
 def empty_pixels(scene: Scene, turntable_deg: float) -> np.ndarray:
     """Pixels no surface can cover: outside the projected hull of the turned mesh and the ground, grown by a pixel."""
     points = [placed_vertices(scene, turntable_model(scene, turntable_deg))]
-    if scene.info.ground is not None:  # as kmpipe.render places it: a square of GROUND_EXTENT radii under the product
+    if (
+        scene.info.ground is not None
+    ):  # as kmpipe.stages.render places it: a square of GROUND_EXTENT radii under the product
         still = placed_vertices(scene, scene.model)
         centre = 0.5 * (still.min(axis=0) + still.max(axis=0))
         half = GROUND_EXTENT * np.max(np.linalg.norm(still - centre, axis=1))
@@ -198,7 +200,7 @@ def test_comparison_rejects_a_3_percent_brighter_light(staged, tmp_path):
     assert text.count("radiance = [1.0, 1.0, 1.0]") == 1
     brighter = staged / "compact_brighter.toml"  # beside materials/, which the scene names relatively
     brighter.write_text(text.replace("radiance = [1.0, 1.0, 1.0]", "radiance = [1.03, 1.03, 1.03]"), encoding="utf-8")
-    from kmpipe.render import render_scene
+    from kmpipe.stages.render import render_scene
 
     frames = [p for p in render_scene(brighter, tmp_path, echo=lambda _: None) if p.suffix == ".exr"]
     for frame, (golden, _) in zip(frames, goldens("compact"), strict=True):

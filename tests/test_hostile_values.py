@@ -1,8 +1,10 @@
 """Hostile values in the files people hand kmpipe: every one is an InputError naming the file and the field (exit
 status 2 on the command line), never an internal error (exit 70), a hang or an allocation of the machine's memory.
 
-Materials (kmpipe.material.read_material), sample manifests (kmpipe.manifest.load_manifest), validation configs
-(kmpipe.validation.Thresholds.from_toml) and card layouts (instruments.drawdown_card.load_layout, ``kmpipe card``).
+Materials (kmpipe.formats.material.read_material), sample manifests (kmpipe.formats.manifest.load_manifest),
+validation configs
+(kmpipe.validation.checks.Thresholds.from_toml) and card layouts (instruments.drawdown_card.load_layout, ``kmpipe
+card``).
 Scenes and recipes are in test_render_scene.py, readings above 1 in test_fit.py.
 """
 
@@ -19,9 +21,9 @@ from hypothesis import strategies as st
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.manifest import load_manifest
-from kmpipe.material import Material, MeasurementFit, material_to_dict, read_material, write_material
-from kmpipe.validation import Thresholds
+from kmpipe.formats.manifest import load_manifest
+from kmpipe.formats.material import Material, MeasurementFit, material_to_dict, read_material, write_material
+from kmpipe.validation.checks import Thresholds
 
 WAVELENGTHS = np.array([400.0, 500.0, 600.0])
 

@@ -15,8 +15,8 @@ from dng_fixtures import write_jpeg
 
 from instruments.drawdown_card import default_layout, load_layout, write_layout
 from kmpipe.cli import main
-from kmpipe.material import read_material
-from kmpipe.spectra import read_spectra_csv
+from kmpipe.formats.material import read_material
+from kmpipe.formats.spectra import read_spectra_csv
 
 SCENE = Scene(
     backings={"black": np.array([0.040, 0.035, 0.030]), "white": np.array([0.86, 0.84, 0.80])},
@@ -181,7 +181,7 @@ def test_a_colorchecker_in_the_photo_gives_device_independent_channels(tmp_path,
     the regions' camera reflectance to XYZ, so the expected values are known independently of the fit."""
     from card_photo import TRUE_CAMERA_MATRIX
 
-    from kmpipe.colorimetry import white_XYZ
+    from kmpipe.physics.colorimetry import white_XYZ
 
     layout = default_layout()
     write_layout(layout, tmp_path / "layout.toml")

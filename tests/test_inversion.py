@@ -1,4 +1,4 @@
-"""Reference tests for the Kubelka-Munk inversions (kmpipe.inversion) and their flags.
+"""Reference tests for the Kubelka-Munk inversions (kmpipe.physics.inversion) and their flags.
 
 Readings are simulated from known K and S with the 50-digit textbook forward model (``mp_reference``),
 rounded to float64, inverted by the code, and compared with the K and S they came from.
@@ -24,9 +24,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kmpipe import inversion as inv
-from kmpipe import saunderson as sd
-from kmpipe.flags import Flag
+from kmpipe.physics import inversion as inv
+from kmpipe.physics import saunderson as sd
+from kmpipe.physics.flags import Flag
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
 #: the RIT table's S is relative (titanium white = 1); x10 makes it per mm for films of 10-300 um.

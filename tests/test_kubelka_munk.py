@@ -1,4 +1,4 @@
-"""Reference tests for the Kubelka-Munk forward model (kmpipe.kubelka_munk, kmpipe.saunderson).
+"""Reference tests for the Kubelka-Munk forward model (kmpipe.physics.kubelka_munk, kmpipe.physics.saunderson).
 
 Every expected value comes from ``mp_reference`` (textbook formulas at 50 digits on the exact float
 inputs), from a conservation law, or from a round trip; none is a number the code produced.
@@ -19,8 +19,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kmpipe import kubelka_munk as km
-from kmpipe import saunderson as sd
+from kmpipe.physics import kubelka_munk as km
+from kmpipe.physics import saunderson as sd
 
 EPS = np.finfo(np.float64).eps
 RTOL = 1e-13
@@ -128,9 +128,7 @@ def test_energy_conservation_on_grid():
     assert np.all((R0 + T)[absorbing] < 1.0)
 
 
-@pytest.mark.parametrize(
-    ("K", "S"), [(0.0, 3.0), (0.2, 3.0), (5.0, 0.1), (4.0, 0.0), (1e-9, 1e3), (1e3, 1e-3)]
-)
+@pytest.mark.parametrize(("K", "S"), [(0.0, 3.0), (0.2, 3.0), (5.0, 0.1), (4.0, 0.0), (1e-9, 1e3), (1e3, 1e-3)])
 def test_r0_rises_and_t_falls_with_thickness(K, S):
     X = np.concatenate([[0.0], np.geomspace(1e-9, 1e4, 400)])
     R0, T = km.film_reflectance_transmittance(K, S, X)
@@ -215,9 +213,7 @@ def test_thick_film_reaches_r_inf(K, S):
 # ---------------------------------------------------------------------------------------------
 # layers
 # ---------------------------------------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("K", "S"), [(0.4, 2.5), (0.0, 3.0), (6.0, 0.05), (3.0, 0.0), (1e-8, 1e2), (200.0, 300.0)]
-)
+@pytest.mark.parametrize(("K", "S"), [(0.4, 2.5), (0.0, 3.0), (6.0, 0.05), (3.0, 0.0), (1e-8, 1e2), (200.0, 300.0)])
 def test_same_material_split_equals_one_film(K, S):
     # X1 + X2 exact in binary, so both sides describe exactly the same film
     X1 = np.array([0.25, 0.5, 0.125, 3.0, 1e-3])

@@ -1,4 +1,5 @@
-"""Sample manifests (kmpipe.manifest, kmpipe.sample): every refusal names the file, the line and the field.
+"""Sample manifests (kmpipe.formats.manifest, kmpipe.formats.sample): every refusal names the file, the line and the
+field.
 
 Expected line numbers are found independently of the code under test: each broken manifest is made by
 replacing one line of a known-good manifest, and the expected line is the one where the replacement text
@@ -18,7 +19,7 @@ import pytest
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.manifest import load_manifest, parse_thickness_mm
+from kmpipe.formats.manifest import load_manifest, parse_thickness_mm
 
 ROOT = Path(__file__).resolve().parents[1]
 F1 = ROOT / "recipes" / "samples" / "F1"
@@ -280,9 +281,7 @@ def test_bad_fit_method(tmp_path, method):
     assert "two-constant" in err.message and "black-white" in err.message and "lsq" in err.message
 
 
-@pytest.mark.parametrize(
-    "grid", ["780:380:5", "380:780:0", "380:780:-5", "380:780", "a:b:c", "400-700", "nan:780:5"]
-)
+@pytest.mark.parametrize("grid", ["780:380:5", "380:780:0", "380:780:-5", "380:780", "a:b:c", "400-700", "nan:780:5"])
 def test_bad_grid(tmp_path, grid):
     text = replace(GOOD, 'grid = "380:780:5"', f'grid = "{grid}"')
     err = refusal(tmp_path, text)
@@ -292,8 +291,7 @@ def test_bad_grid(tmp_path, grid):
 
 
 def test_grid_that_is_not_a_whole_number_of_steps(tmp_path):
-    """400:700:7 cannot be built (300 nm is not a multiple of 7 nm): refused by the manifest, with its line.
-    """
+    """400:700:7 cannot be built (300 nm is not a multiple of 7 nm): refused by the manifest, with its line."""
     text = replace(GOOD, 'grid = "380:780:5"', 'grid = "400:700:7"')
     err = refusal(tmp_path, text)
     assert err.field == "fit.grid"
@@ -314,8 +312,9 @@ def test_saunderson_inside_unit_interval_is_accepted(tmp_path):
     assert load_manifest(path).fit.saunderson == (0.0, 0.6)
 
 
-@pytest.mark.parametrize(("key", "value"), [("noise", "0"), ("noise", "-0.01"), ("smoothness", "-1"),
-                                            ("opaque_tolerance", "0.7")])
+@pytest.mark.parametrize(
+    ("key", "value"), [("noise", "0"), ("noise", "-0.01"), ("smoothness", "-1"), ("opaque_tolerance", "0.7")]
+)
 def test_bad_numbers_in_fit(tmp_path, key, value):
     text = replace(GOOD, 'grid = "380:780:5"', f'grid = "380:780:5"\n{key} = {value}')
     err = refusal(tmp_path, text)
@@ -437,8 +436,13 @@ def test_cli_missing_column(tmp_path, capsys):
     assert "film_30um_white" in message
     assert str(folder / "manifest.toml") in message
     assert "film[4].column" in message
-    for column in ("masstone", "film_15um_over_black", "film_15um_over_white", "film_30um_over_black",
-                   "film_30um_over_white"):
+    for column in (
+        "masstone",
+        "film_15um_over_black",
+        "film_15um_over_white",
+        "film_30um_over_black",
+        "film_30um_over_white",
+    ):
         assert column in message
     # The line of `column = "film_30um_white"` is known.
     assert f"line {line_of(text, 'film_30um_white')}" in message
@@ -481,8 +485,7 @@ def test_cli_white_reading_zero_somewhere(tmp_path, capsys):
 
 
 def test_cli_white_reading_ten_times_too_low(tmp_path, capsys):
-    """The whole white reading scaled down 10x: refused, naming the white standard's file.
-    """
+    """The whole white reading scaled down 10x: refused, naming the white standard's file."""
     folder = sample_folder(tmp_path)
     edit_csv(folder / "white.csv", "baso4", lambda w, v: v / 10.0)
     status, err = fit_cli(capsys, folder)

@@ -21,7 +21,7 @@ import serial
 from instruments.cs2000.emulator import Emulator, Fault, read_reflectance_csv
 from instruments.session_log import read_session_log
 from kmpipe.cli import main
-from kmpipe.spectra import read_spectra_csv
+from kmpipe.formats.spectra import read_spectra_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 F1 = ROOT / "recipes" / "samples" / "F1"
@@ -333,7 +333,7 @@ def test_a_noise_line_before_a_reply_does_not_crash_the_session(tmp_path, capsys
 
 def test_a_reading_whose_data_are_gone_is_measured_again(tmp_path, capsys):
     """ER20 (no data) on a spectral block, and on the MEDR,0,0,1 poll that follows (the data really are gone):
-    the reading is tried again, as kmpipe.measure promises for "no data", and the session completes."""
+    the reading is tried again, as kmpipe.stages.measure promises for "no data", and the session completes."""
     folder = tmp_path / "F1"
     gone = [Fault("no_data", "MEDR,1,1,3", occurrence=4), Fault("no_data", "MEDR,0,0,1", occurrence=4)]
     with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=gone) as emulator:
@@ -463,7 +463,7 @@ def test_a_sample_name_that_leads_out_of_the_plan_folder_is_refused(tmp_path, ca
 @pytest.mark.parametrize("name", ["..", ".", "a/b"])
 def test_unsafe_sample_names_are_refused_by_the_plan(tmp_path, name):
     from kmpipe.errors import InputError
-    from kmpipe.measure import load_plan
+    from kmpipe.stages.measure import load_plan
 
     plan = edited_plan(tmp_path, 'name = "F1"', f"name = {json.dumps(name)}")
     with pytest.raises(InputError) as caught:
@@ -608,7 +608,7 @@ def test_replay_of_another_samples_log_is_refused_and_writes_nothing(tmp_path, c
 
 
 def test_a_recorded_log_names_its_sample_and_plan_and_a_log_without_them_is_replayed_with_a_warning(tmp_path, capsys):
-    from kmpipe.measure import plan_digest
+    from kmpipe.stages.measure import plan_digest
 
     [connection] = read_session_log(SESSIONS / "complete.jsonl")
     assert connection.header["meta"] == {"sample": "F1", "plan_sha256": plan_digest(PLAN)}
@@ -738,7 +738,7 @@ def test_colorimetry_that_never_fits_stops_the_session_naming_the_reading(tmp_pa
 def test_colorimetry_problem_checks_plausibility_and_the_spectrum(values, problem):
     import colour
 
-    from kmpipe.measure import colorimetry_problem
+    from kmpipe.stages.measure import colorimetry_problem
 
     cmfs = np.asarray(colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"][np.arange(380, 781)])
     radiance = np.ones(401) / (683.0 * cmfs[:, 1].sum())  # an equal-energy spectrum of 1 cd/m2: x = y = 1/3
@@ -753,7 +753,7 @@ def test_colorimetry_problem_checks_plausibility_and_the_spectrum(values, proble
 def test_kmpipe_run_refuses_to_replay_another_samples_log(tmp_path):
     """``kmpipe run`` replays a product's log through ``run_session(plan, "replay://LOG")``: the same check."""
     from kmpipe.errors import InputError
-    from kmpipe.run import do_material
+    from kmpipe.run.graph import do_material
 
     with pytest.raises(InputError, match="was recorded for sample L1") as caught:
         do_material("replay", {"plan": str(PLAN), "log": str(DEMO_SESSIONS / "L1.jsonl")}, str(tmp_path / "F1"))

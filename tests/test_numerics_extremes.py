@@ -19,9 +19,9 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from kmpipe import inversion as inv
-from kmpipe import kubelka_munk as km
-from kmpipe.flags import Flag
+from kmpipe.physics import inversion as inv
+from kmpipe.physics import kubelka_munk as km
+from kmpipe.physics.flags import Flag
 
 EPS = np.finfo(np.float64).eps
 ANY_FLAG = int(Flag.OPAQUE | Flag.OUT_OF_RANGE | Flag.NO_CONTRAST | Flag.AT_BOUND)

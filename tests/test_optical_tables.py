@@ -11,8 +11,8 @@ import colour
 import numpy as np
 import pytest
 
-from kmpipe.kubelka_munk import film_reflectance_transmittance, stack_over_substrate
-from kmpipe.optical_tables import (
+from kmpipe.physics.kubelka_munk import film_reflectance_transmittance, stack_over_substrate
+from kmpipe.physics.optical_tables import (
     OpticalTable,
     Stack,
     band_partition,
@@ -21,7 +21,7 @@ from kmpipe.optical_tables import (
     working_space,
     working_space_matrix,
 )
-from kmpipe.render_plan import plan_render
+from kmpipe.stages.render_plan import plan_render
 
 PIGMENTS = Path("/work/shared/data/pigments/rit_golden_acrylic_ks.csv")
 MODES = ("rgb", "bands:3", "bands:6", "exact")
@@ -109,10 +109,15 @@ def test_exact_mode_matches_independent_spectral_computation(illuminant):
 
     def to_rgb(values):
         XYZ = colour.sd_to_XYZ(colour.SpectralDistribution(values, WL), cmfs, light, method="Integration") / 100
-        white = colour.sd_to_XYZ(colour.SpectralDistribution(np.ones_like(WL), WL), cmfs, light,
-                                 method="Integration") / 100
-        return colour.XYZ_to_RGB(XYZ, colour.RGB_COLOURSPACES["sRGB"], illuminant=colour.XYZ_to_xy(white),
-                                 chromatic_adaptation_transform="CAT02")
+        white = (
+            colour.sd_to_XYZ(colour.SpectralDistribution(np.ones_like(WL), WL), cmfs, light, method="Integration") / 100
+        )
+        return colour.XYZ_to_RGB(
+            XYZ,
+            colour.RGB_COLOURSPACES["sRGB"],
+            illuminant=colour.XYZ_to_xy(white),
+            chromatic_adaptation_transform="CAT02",
+        )
 
     # The working space is normalized so that the perfect white is (1, 1, 1): divide by the reference's white.
     expected = to_rgb(R) / to_rgb(np.ones_like(WL))
@@ -129,8 +134,10 @@ def _rit_stacks() -> list[Stack]:
 def test_band_error_shrinks_with_more_bands_and_rgb_is_worst():
     stacks = _rit_stacks()
     ranges = dict.fromkeys(PAINTS, THICKNESS)
-    worst = {m: mode_error(stacks, m, PAINTS, ranges).max() for m in ("rgb", "bands:3", "bands:6", "bands:9",
-                                                                      "bands:12", "exact")}
+    worst = {
+        m: mode_error(stacks, m, PAINTS, ranges).max()
+        for m in ("rgb", "bands:3", "bands:6", "bands:9", "bands:12", "exact")
+    }
     assert worst["rgb"] > worst["bands:3"] > worst["bands:6"] > worst["bands:9"] > worst["bands:12"]
     assert worst["exact"] < 1e-6
 
@@ -167,8 +174,11 @@ def test_planner_picks_rgb_for_loose_target_and_finer_for_tight():
     for name in tight.materials:
         X = rng.uniform(*THICKNESS, 50)
         direct = OpticalTable.build(PAINTS[name], X, tight.mode, space)
-        dE = colour.delta_E(space.to_Lab(composite([tables[name]], [X], SKIN, tight.mode)),
-                            space.to_Lab(composite([direct], [X], SKIN, tight.mode)), method="CIE 2000")
+        dE = colour.delta_E(
+            space.to_Lab(composite([tables[name]], [X], SKIN, tight.mode)),
+            space.to_Lab(composite([direct], [X], SKIN, tight.mode)),
+            method="CIE 2000",
+        )
         assert np.max(dE) <= 0.25 * 0.5
 
 

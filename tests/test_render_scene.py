@@ -1,7 +1,7 @@
 """``kmpipe render``: a scene file to EXR and PNG frames, checked against numpy predictions of the optical tables.
 
 The card faces the camera and the light head-on, so its centre pixel is the stack's reflectance (composed in the
-planned mode by kmpipe.optical_tables.composite) times the light's radiance.
+planned mode by kmpipe.physics.optical_tables.composite) times the light's radiance.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ import pytest
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.material import read_material
-from kmpipe.optical_tables import composite
-from kmpipe.render import plan_scene
-from kmpipe.scene import load_scene
+from kmpipe.formats.material import read_material
+from kmpipe.formats.scene import load_scene
+from kmpipe.physics.optical_tables import composite
+from kmpipe.stages.render import plan_scene
 from renderer.image_io import read_exr, read_png, srgb_encode
 
 REPO = Path(__file__).resolve().parent.parent
@@ -309,7 +309,7 @@ def test_rendered_rgb_and_bands_stay_within_their_planned_delta_e_of_rendered_ex
     """The planner's Delta E of each mode (measured on tables) holds for the rendered pixels against exact."""
     import colour
 
-    from kmpipe.optical_tables import working_space
+    from kmpipe.physics.optical_tables import working_space
 
     centres = {}
     for mode in ("rgb", "bands:6", "bands:9", "exact"):
@@ -359,7 +359,7 @@ def test_bare_skin_with_an_albedo_texture_renders_the_texture(tmp_path, material
     texture = np.zeros((4, 8, 3))
     texture[:, 4:] = (0.22, 0.30, 0.45)
     if mode == "bands:6":  # the skin's colour in the working space, from its spectrum (the mode's own error aside)
-        from kmpipe.optical_tables import working_space
+        from kmpipe.physics.optical_tables import working_space
 
         material = read_material(material_file)
         substrate = load_scene(skin_scene(tmp_path, material_file, mode, None)).substrate
@@ -503,7 +503,7 @@ def test_a_thickness_map_larger_than_the_limit_is_refused_from_its_header(tmp_pa
 
 
 def test_a_recipe_mode_is_checked_as_a_scene_mode_is(tmp_path, material_file):
-    from kmpipe.recipe import load_recipe
+    from kmpipe.formats.recipe import load_recipe
 
     path = tmp_path / "recipe.toml"
     path.write_text(
@@ -517,7 +517,7 @@ def test_a_recipe_mode_is_checked_as_a_scene_mode_is(tmp_path, material_file):
 
 
 def test_the_scene_mode_limit_is_the_layer_pass_channel_count():
-    from kmpipe.scene import RenderSettings
+    from kmpipe.formats.scene import RenderSettings
     from renderer.layers import MAX_CHANNELS
 
     assert RenderSettings(mode=f"bands:{MAX_CHANNELS}").mode == f"bands:{MAX_CHANNELS}"
@@ -538,7 +538,7 @@ def test_a_render_writes_exr_and_png_pairs_only(tmp_path, material_file, capsys)
 
 def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_path, material_file, monkeypatch):
     import renderer.layers
-    from kmpipe.render import render_scene
+    from kmpipe.stages.render import render_scene
 
     monkeypatch.setattr(renderer.layers, "render_layers", lambda *a, **k: np.full((SIZE, SIZE, 3), np.nan))
     with pytest.raises(RuntimeError, match="NaN or infinite"):
@@ -548,7 +548,7 @@ def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_pat
 
 def test_an_exit_between_the_renames_leaves_no_exr_without_its_png(tmp_path, material_file, monkeypatch):
     import renderer.image_io
-    from kmpipe.render import render_scene
+    from kmpipe.stages.render import render_scene
 
     scene = load_scene(write_scene(tmp_path, material_file))
     out = tmp_path / "out"
@@ -569,7 +569,7 @@ def test_an_exit_between_the_renames_leaves_no_exr_without_its_png(tmp_path, mat
 def test_more_bands_than_the_materials_wavelengths_exits_2(tmp_path, material_file, capsys):
     import dataclasses
 
-    from kmpipe.material import write_material
+    from kmpipe.formats.material import write_material
 
     full = read_material(material_file)
     measurements = tuple(dataclasses.replace(m, residuals=m.residuals[:4]) for m in full.measurements)
@@ -589,8 +589,8 @@ def test_scenes_recipes_and_validation_resolve_illuminants_alike(name, key):
     """One resolver: what validation accepts (CIE names, F for colour-science's FL), a scene or recipe accepts."""
     import colour
 
-    from kmpipe.colorimetry import illuminant_sd
-    from kmpipe.scene import RenderSettings
+    from kmpipe.formats.scene import RenderSettings
+    from kmpipe.physics.colorimetry import illuminant_sd
 
     assert RenderSettings(illuminant=name).illuminant == name
     assert illuminant_sd(name) is colour.SDS_ILLUMINANTS[key]
@@ -602,9 +602,9 @@ def test_an_unknown_illuminant_is_refused_alike_and_the_message_suggests_only_kn
     import colour
     from pydantic import ValidationError
 
-    from kmpipe.colorimetry import illuminant_key, illuminant_sd
     from kmpipe.errors import InputError
-    from kmpipe.scene import RenderSettings
+    from kmpipe.formats.scene import RenderSettings
+    from kmpipe.physics.colorimetry import illuminant_key, illuminant_sd
 
     with pytest.raises(ValidationError, match="unknown illuminant 'X99'"):
         RenderSettings(illuminant="X99")

@@ -23,6 +23,7 @@ def lambert(mesh, camera, light, albedo, width, height, **options):
     """A bare Lambert surface of ``albedo`` (linear RGB): the layer pass with no films."""
     return render_layers(mesh, camera, [light], ChannelStack([], [], albedo), width, height, **options)
 
+
 ALBEDO = np.array([0.5, 0.25, 0.8])
 RADIANCE = np.array([2.0, 3.0, 0.5])
 BACKGROUND = (-1.0, -1.0, -1.0)  # a value no lit surface can produce
@@ -67,9 +68,7 @@ def test_card_head_on_renders_albedo_times_radiance_over_the_card_only():
 def test_tilting_the_light_scales_by_cos_theta(theta_deg):
     theta = np.radians(theta_deg)
     light = DirectionalLight(direction=(0.0, -np.sin(theta), -np.cos(theta)), radiance=tuple(RADIANCE))
-    image = lambert(
-        meshes.card(20.0, 20.0), OrthographicCamera(half_height=10.0), light, tuple(ALBEDO), 16, 16
-    )
+    image = lambert(meshes.card(20.0, 20.0), OrthographicCamera(half_height=10.0), light, tuple(ALBEDO), 16, 16)
     np.testing.assert_allclose(image, np.broadcast_to(ALBEDO * RADIANCE * np.cos(theta), image.shape), rtol=1e-5)
 
 

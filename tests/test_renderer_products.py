@@ -21,6 +21,7 @@ def lambert(mesh, camera, light, albedo, width, height, **options):
     """A bare Lambert surface of ``albedo`` (linear RGB): the layer pass with no films."""
     return render_layers(mesh, camera, [light], ChannelStack([], [], albedo), width, height, **options)
 
+
 BULLETS = [
     {},  # the defaults: 12 mm x 20 mm, 50 degree bevel
     {"diameter": 10.0, "length": 25.0, "bevel_angle_deg": 35.0, "segments": 48},

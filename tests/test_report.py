@@ -1,4 +1,4 @@
-"""Reports (kmpipe.report): the HTML page and validation.json of one sample, and the index of a batch.
+"""Reports (kmpipe.validation.report): the HTML page and validation.json of one sample, and the index of a batch.
 
 A bundled sample (F1) is fitted through the command line and validated; a small camera-channel sample is
 written here and fitted with the black-white method. Pages are checked for what a technician relies on
@@ -21,9 +21,9 @@ import pytest
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.report import DPI, KS_SIZE, SPECTRA_SIZE, swatch_figsize, write_index, write_sample_report
-from kmpipe.validation import Finding, Thresholds, report_to_dict, validate_material
+from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+from kmpipe.validation.checks import Finding, Thresholds, report_to_dict, validate_material
+from kmpipe.validation.report import DPI, KS_SIZE, SPECTRA_SIZE, swatch_figsize, write_index, write_sample_report
 
 ROOT = Path(__file__).resolve().parents[1]
 F1_MANIFEST = ROOT / "recipes" / "samples" / "F1" / "manifest.toml"
@@ -31,7 +31,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 IMG = re.compile(r"<img\b[^>]*>")
 
 # colour-science 0.4.7 warns that it aligns the CMFs and illuminants to the spectra's grid (intended);
-# kmpipe.colorimetry's filter for ColourWarning misses it: ColourRuntimeWarning does not derive from it.
+# kmpipe.physics.colorimetry's filter for ColourWarning misses it: ColourRuntimeWarning does not derive from it.
 pytestmark = pytest.mark.filterwarnings("ignore:Aligning:colour.utilities.ColourRuntimeWarning")
 
 

@@ -1,4 +1,5 @@
-"""``kmpipe run`` (kmpipe.run, kmpipe.recipe, kmpipe.cli): a product line's recipe as a graph of cached tasks.
+"""``kmpipe run`` (kmpipe.run.graph, kmpipe.formats.recipe, kmpipe.cli): a product line's recipe as a graph of cached
+tasks.
 
 Every test builds its line in a temporary folder: a copy of the recorded CS-2000 session of F1
 (tests/data/sessions/complete.jsonl) with F1's plan, the bundled L1 and B1 samples, a small thickness map, and a
@@ -26,8 +27,8 @@ import pytest
 from PIL import Image
 
 from kmpipe import cli
-from kmpipe.run import FRAMES_PER_TASK, LOCK, execute, plan_run
-from kmpipe.spectra import read_spectra_csv
+from kmpipe.formats.spectra import read_spectra_csv
+from kmpipe.run.graph import FRAMES_PER_TASK, LOCK, execute, plan_run
 from renderer.image_io import read_exr, write_map
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -528,7 +529,7 @@ def test_a_sample_measured_live_is_measured_once_and_its_recording_replays_to_th
     """A product measured on the (emulated) CS-2000 at the recipe's port: the run records the session; a second run
     needs no instrument (the emulator is gone); replaying the recording gives the same K and S."""
     from instruments.cs2000.emulator import Emulator
-    from kmpipe.material import read_material
+    from kmpipe.formats.material import read_material
 
     folder = tmp_path / "line"
     folder.mkdir()

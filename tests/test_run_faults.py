@@ -1,4 +1,4 @@
-"""``kmpipe run`` (kmpipe.run) against a hostile or busy output folder: symlinks leading out of it, recipe outputs
+"""``kmpipe run`` (kmpipe.run.graph) against a hostile or busy output folder: symlinks leading out of it, recipe outputs
 that collide, a run killed part way (records, temporary files), two runs at once (the lock), bad scheduler addresses,
 damaged task records and a contact sheet too large to make.
 
@@ -21,7 +21,7 @@ from test_run import F1, FACE, L1, make_line
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.run import LOCK, RECORDS, check_executor, execute, locked, plan_run, remove_tree
+from kmpipe.run.graph import LOCK, RECORDS, check_executor, execute, locked, plan_run, remove_tree
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -369,7 +369,7 @@ def test_scheduler_addresses_are_accepted(address):
 def test_a_scheduler_that_fails_becomes_bad_input(monkeypatch):
     import distributed
 
-    from kmpipe.run import _Dask
+    from kmpipe.run.graph import _Dask
 
     def refuse(address, **_):
         raise ValueError(f"unexpected scheme in {address}")

@@ -82,12 +82,21 @@ class PtyInstrument:
 
 
 SCRIPT = [
-    ("expect", b"RMTS,2\r\n"), ("send", b"OK00\r\n"),
-    ("expect", b"MEDR,1,1,1\r\n"), ("send", b"OK00,3AA1"), ("cue", 0), ("send", b"CEF2\r\n"),
+    ("expect", b"RMTS,2\r\n"),
+    ("send", b"OK00\r\n"),
+    ("expect", b"MEDR,1,1,1\r\n"),
+    ("send", b"OK00,3AA1"),
+    ("cue", 0),
+    ("send", b"CEF2\r\n"),
     ("expect", b"FOO\r\n"),  # no answer: the host's read times out
-    ("expect", b"MEAS,0\r\n"), ("send", b"OK00\r\n"), ("cue", 1), ("send", STALE),
-    ("expect", BINARY), ("send", BINARY[::-1]),
-    ("expect", b"RMTS,0\r\n"), ("send", b"OK00\r\n"),
+    ("expect", b"MEAS,0\r\n"),
+    ("send", b"OK00\r\n"),
+    ("cue", 1),
+    ("send", STALE),
+    ("expect", BINARY),
+    ("send", BINARY[::-1]),
+    ("expect", b"RMTS,0\r\n"),
+    ("send", b"OK00\r\n"),
 ]
 EXPECTED_REPLIES = [b"OK00\r\n", b"OK00,3AA1", b"CEF2\r\n", b"", b"OK00\r\n", BINARY[::-1], b"OK00\r\n"]
 
@@ -161,8 +170,13 @@ def follow(port, events):
 
 def handwritten(path, *events):
     """Write a session log with one connection and the given event entries."""
-    header = {"kmpipe_session_log": 1, "port": "loop://", "started": "2025-01-01T00:00:00.000Z", "resumed": False,
-              "meta": {}}
+    header = {
+        "kmpipe_session_log": 1,
+        "port": "loop://",
+        "started": "2025-01-01T00:00:00.000Z",
+        "resumed": False,
+        "meta": {},
+    }
     path.write_text("".join(json.dumps(entry) + "\n" for entry in (header, *events)), encoding="ascii")
     return path
 
@@ -187,7 +201,8 @@ def test_log_holds_every_byte_and_event_in_order(recorded):
     kinds = [event.kind for event in events]
     assert kinds.count("timeout") == 1 and kinds.count("flush") == 1 and kinds[-1] == "close"
     assert b"".join(e.data for e in events if e.kind == "tx") == (
-        b"RMTS,2\r\nMEDR,1,1,1\r\nFOO\r\nMEAS,0\r\n" + BINARY + b"RMTS,0\r\n")
+        b"RMTS,2\r\nMEDR,1,1,1\r\nFOO\r\nMEAS,0\r\n" + BINARY + b"RMTS,0\r\n"
+    )
     assert b"".join(e.data for e in events if e.kind == "rx") == b"".join(EXPECTED_REPLIES)
     assert b"OK00,3AA1" in [e.data for e in events if e.kind == "rx"]  # the first chunk of the split reply
     timeout = events[kinds.index("timeout")]
@@ -196,8 +211,12 @@ def test_log_holds_every_byte_and_event_in_order(recorded):
     assert events[kinds.index("flush")].data == STALE
     assert [e.t for e in events] == sorted(e.t for e in events)
     flush_line = log_path.read_text(encoding="ascii").splitlines()[events[kinds.index("flush")].line - 1]
-    assert json.loads(flush_line) == {"t": pytest.approx(events[kinds.index("flush")].t), "dir": "flush",
-                                      "data": "OK00\r\n", "unread": 0}
+    assert json.loads(flush_line) == {
+        "t": pytest.approx(events[kinds.index("flush")].t),
+        "dir": "flush",
+        "data": "OK00\r\n",
+        "unread": 0,
+    }
 
 
 def test_log_lines_are_readable_ascii_and_exact_for_all_bytes(tmp_path):
@@ -279,7 +298,11 @@ def test_flush_logs_unread_bytes_and_replays_them(tmp_path):
     port.close()
     [connection] = read_session_log(path)
     assert [(e.kind, e.data) for e in connection.events] == [
-        ("tx", b"AB\nCD\n"), ("rx", b"AB\nCD\n"), ("flush", b""), ("close", b"")]
+        ("tx", b"AB\nCD\n"),
+        ("rx", b"AB\nCD\n"),
+        ("flush", b""),
+        ("close", b""),
+    ]
     assert json.loads(path.read_text(encoding="ascii").splitlines()[3])["unread"] == 3
     again = replay(path)
     again.write(b"AB\nCD\n")
@@ -341,8 +364,7 @@ def test_read_until_deadline_is_recorded_and_replayed(tmp_path, monkeypatch):
     clock = FakeClock()
     monkeypatch.setattr(serial.serialutil.Timeout, "TIME", staticmethod(clock.monotonic))
     path = tmp_path / "trickle.jsonl"
-    port = RecordingSerial(TrickleInstrument(b"OK00,123\r\n", clock, timeout=0.35),
-                           SessionLog(path, port="trickle"))
+    port = RecordingSerial(TrickleInstrument(b"OK00,123\r\n", clock, timeout=0.35), SessionLog(path, port="trickle"))
     port.write(b"SPMR\r\n")
     parts = [port.read_until(b"\r\n") for _ in range(3)]
     assert parts == [b"OK00", b",123", b"\r\n"]  # pyserial's 0.35 s deadline cut the line after 4 bytes
@@ -571,15 +593,18 @@ def test_writing_past_the_recording_is_a_mismatch(tmp_path):
     assert lenient.done()
 
 
-@pytest.mark.parametrize(("line", "message"), [
-    ('{"t": 0.1, "dir": "sideways", "data": ""}', "'dir' must be one of"),
-    ('{"t": -1, "dir": "close"}', "'t' must be a number >= 0"),
-    ('{"t": 0.1, "dir": "timeout"}', "'waited' must be a number >= 0"),
-    ('{"t": 0.1, "dir": "rx", "data": 65}', "needs 'data'"),
-    ('{"t": 0.1, "dir": "rx", "data": "\\u20ac"}', "above U\\+00FF"),
-    ('[1, 2]', "expected a JSON object"),
-    ('{"kmpipe_session_log": 2}', "version 2"),
-])
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ('{"t": 0.1, "dir": "sideways", "data": ""}', "'dir' must be one of"),
+        ('{"t": -1, "dir": "close"}', "'t' must be a number >= 0"),
+        ('{"t": 0.1, "dir": "timeout"}', "'waited' must be a number >= 0"),
+        ('{"t": 0.1, "dir": "rx", "data": 65}', "needs 'data'"),
+        ('{"t": 0.1, "dir": "rx", "data": "\\u20ac"}', "above U\\+00FF"),
+        ("[1, 2]", "expected a JSON object"),
+        ('{"kmpipe_session_log": 2}', "version 2"),
+    ],
+)
 def test_bad_log_lines_are_named(tmp_path, line, message):
     path = handwritten(tmp_path / "bad.jsonl")
     with path.open("a", encoding="ascii") as file:

@@ -1,4 +1,4 @@
-"""Tests of the spectral CSV format and of resampling (kmpipe.spectra)."""
+"""Tests of the spectral CSV format and of resampling (kmpipe.formats.spectra)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kmpipe.errors import InputError
-from kmpipe.spectra import (
+from kmpipe.formats.spectra import (
     SpectralTable,
     read_spectra_csv,
     resample,
@@ -552,7 +552,6 @@ def test_random_tables_round_trip_exactly(original):
         assert back.wavelengths.tobytes() == original.wavelengths.tobytes()
     assert np.array_equal(back.values, original.values)
     assert all(
-        math.copysign(1, a) == math.copysign(1, b)
-        for a, b in zip(back.values.flat, original.values.flat, strict=True)
+        math.copysign(1, a) == math.copysign(1, b) for a, b in zip(back.values.flat, original.values.flat, strict=True)
     )
     assert list(back.metadata.items()) == list(original.metadata.items())

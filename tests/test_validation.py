@@ -1,4 +1,4 @@
-"""Validation of fitted materials (kmpipe.validation, ``kmpipe validate``) against independently known answers.
+"""Validation of fitted materials (kmpipe.validation.checks, ``kmpipe validate``) against independently known answers.
 
 Every check is triggered by a sample simulated into a temporary folder with exactly the fault it must catch
 (the thesis's sample F2, noise that drives K below 0, an opaque film, a masstone drawn too thin, surface
@@ -31,10 +31,10 @@ from hypothesis import strategies as st
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.saunderson import saunderson_forward
-from kmpipe.spectra import SpectralTable, write_spectra_csv
-from kmpipe.validation import CHECKS, MIN_NOISE, Thresholds, report_to_dict, validate_material
+from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
+from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+from kmpipe.physics.saunderson import saunderson_forward
+from kmpipe.validation.checks import CHECKS, MIN_NOISE, Thresholds, report_to_dict, validate_material
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -1271,7 +1271,7 @@ def test_formats_doc_lists_every_field_key_and_check(clean, f2):
 
 def test_the_report_is_written_before_validation_json(clean, tmp_path, monkeypatch):
     """validation.json (what batch readers look for) comes last: an exit between leaves no JSON without its page."""
-    import kmpipe.report as report_module
+    import kmpipe.validation.report as report_module
 
     order = []
     real = report_module.write_text_atomically

@@ -1,4 +1,4 @@
-"""Tests of white-standard normalisation (kmpipe.white)."""
+"""Tests of white-standard normalisation (kmpipe.physics.white)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from kmpipe.errors import InputError
-from kmpipe.spectra import SpectralTable, read_spectra_csv, uniform_grid, write_spectra_csv
-from kmpipe.white import (
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, uniform_grid, write_spectra_csv
+from kmpipe.physics.white import (
     ReadingSource,
     baso4_typical,
     certified_reflectance,
@@ -78,9 +78,7 @@ def test_builtin_curve_refuses_a_grid_beyond_380_780():
 
 def test_certified_builtin_and_files(tmp_path):
     fine = uniform_grid(400, 700, 1)
-    assert np.array_equal(
-        certified_reflectance("builtin:baso4", fine, base_dir=tmp_path), baso4_typical(fine)
-    )
+    assert np.array_equal(certified_reflectance("builtin:baso4", fine, base_dir=tmp_path), baso4_typical(fine))
 
     cert_grid = uniform_grid(360, 830, 10)
     spectralon = 0.99 - 0.01 * np.exp(-(cert_grid - 360) / 30)
@@ -92,9 +90,7 @@ def test_certified_builtin_and_files(tmp_path):
     assert np.max(np.abs(got - (0.99 - 0.01 * np.exp(-(fine - 360) / 30)))) < 1e-6
 
     two = write_reflectance(tmp_path / "two.csv", cert_grid, {"front": spectralon, "back": spectralon - 0.01})
-    assert np.array_equal(
-        certified_reflectance("two.csv:back", cert_grid, base_dir=tmp_path), spectralon - 0.01
-    )
+    assert np.array_equal(certified_reflectance("two.csv:back", cert_grid, base_dir=tmp_path), spectralon - 0.01)
     assert np.array_equal(certified_reflectance(f"{two}:front", cert_grid, base_dir=Path("/")), spectralon)
 
     colon = write_reflectance(tmp_path / "cert:2026.csv", cert_grid, {"R": spectralon})
@@ -108,9 +104,7 @@ def certified_refusal(tmp_path, spec, grid=GRID):
 
 
 def test_certified_refusals(tmp_path):
-    write_reflectance(
-        tmp_path / "two.csv", GRID, {"front": np.full(GRID.size, 0.98), "back": np.full(81, 0.97)}
-    )
+    write_reflectance(tmp_path / "two.csv", GRID, {"front": np.full(GRID.size, 0.98), "back": np.full(81, 0.97)})
     write_reflectance(tmp_path / "narrow.csv", uniform_grid(400, 700, 10), {"R": np.full(31, 0.98)})
     dim = np.full(GRID.size, 0.98)
     dim[20] = 0.45
@@ -124,14 +118,10 @@ def test_certified_refusals(tmp_path):
     camera = SpectralTable(None, ("R", "G", "B"), ("w",), np.full((1, 3), 0.98), {"quantity": "reflectance"})
     write_spectra_csv(camera, tmp_path / "camera.csv")
 
-    assert "unknown built-in white standard 'builtin:spectralon'" in certified_refusal(
-        tmp_path, "builtin:spectralon"
-    )
+    assert "unknown built-in white standard 'builtin:spectralon'" in certified_refusal(tmp_path, "builtin:spectralon")
     message = certified_refusal(tmp_path, "missing.csv")
     assert "'missing.csv' not found" in message and "PATH:COLUMN" in message
-    assert "'two.csv' has 2 columns (front, back); name one as PATH:COLUMN" in certified_refusal(
-        tmp_path, "two.csv"
-    )
+    assert "'two.csv' has 2 columns (front, back); name one as PATH:COLUMN" in certified_refusal(tmp_path, "two.csv")
     message = certified_refusal(tmp_path, "two.csv:side")
     assert "two.csv" in message and "no column 'side'" in message and "'front', 'back'" in message
     message = certified_refusal(tmp_path, "narrow.csv")
@@ -159,9 +149,7 @@ def test_recovers_reflectance_from_simulated_radiance():
     assert np.max(np.abs(got - reflectance)) < 1e-12
     one = radiance_to_reflectance(sample[1], illuminant * certified, certified, dark=None)
     assert np.max(np.abs(one - (reflectance[1] + dark / illuminant))) < 1e-12  # no dark: offset stays in
-    assert (
-        np.max(np.abs(radiance_to_reflectance(sample - dark, white - dark, certified) - reflectance)) < 1e-12
-    )
+    assert np.max(np.abs(radiance_to_reflectance(sample - dark, white - dark, certified) - reflectance)) < 1e-12
     scalar = radiance_to_reflectance(sample - dark + 1e-3, white - dark + 1e-3, certified, dark=1e-3)
     assert np.max(np.abs(scalar - reflectance)) < 1e-12
 
@@ -216,9 +204,7 @@ def test_refuses_saturated_white(session):
     err = refusal(readings, certified, source, baso4=modified(white, 3, 0.0))
     assert "395 nm" in str(err) and "positive" in str(err)
     peak = int(np.argmax(white))
-    err = refusal(
-        readings, certified, source, baso4=modified(white, slice(peak - 2, peak + 3), white.max() * 1.01)
-    )
+    err = refusal(readings, certified, source, baso4=modified(white, slice(peak - 2, peak + 3), white.max() * 1.01))
     assert "clipped" in str(err) and "5 consecutive" in str(err)
     # a smooth peak printed with few digits may repeat its maximum two or three times: accepted
     rounded = modified(white, slice(peak - 1, peak + 2), white.max())

@@ -127,7 +127,7 @@ class _Cursor:
         span, lines = bytearray(), []
         i, offset = self.tx_i, self.tx_off
         while len(span) < size and i < len(self.tx):
-            part = self.tx[i].data[offset:offset + size - len(span)]
+            part = self.tx[i].data[offset : offset + size - len(span)]
             span += part
             lines += [self.tx[i].line] * len(part)
             i, offset = i + 1, 0
@@ -151,7 +151,7 @@ class _Cursor:
     def take(self, size: int) -> bytes:
         """Return up to ``size`` bytes of the current rx (or flush) entry and advance."""
         event = self.rx[self.rx_i]
-        data = event.data[self.rx_off:self.rx_off + size]
+        data = event.data[self.rx_off : self.rx_off + size]
         self.rx_off += len(data)
         if self.rx_off == len(event.data):
             self.rx_i += 1
@@ -176,13 +176,17 @@ class _Cursor:
         items = []
         if self.tx_i < len(self.tx):
             event = self.tx[self.tx_i]
-            items.append(f"{where}: {len(self.tx) - self.tx_i} write(s) not made, the first at line {event.line}: "
-                         f"{event.data[self.tx_off:]!r}")
+            items.append(
+                f"{where}: {len(self.tx) - self.tx_i} write(s) not made, the first at line {event.line}: "
+                f"{event.data[self.tx_off :]!r}"
+            )
         if self.rx_i < len(self.rx):
             event = self.rx[self.rx_i]
-            shown = f" {event.data[self.rx_off:]!r}" if event.data else ""
-            items.append(f"{where}: {len(self.rx) - self.rx_i} event(s) not replayed, the first at line "
-                         f"{event.line}: {event.kind}{shown}")
+            shown = f" {event.data[self.rx_off :]!r}" if event.data else ""
+            items.append(
+                f"{where}: {len(self.rx) - self.rx_i} event(s) not replayed, the first at line "
+                f"{event.line}: {event.kind}{shown}"
+            )
         return items
 
 
@@ -216,8 +220,10 @@ class Serial(SerialBase):
             raise SerialException(str(err)) from err
         if selected is not None:
             if selected >= len(connections):
-                raise SerialException(f"{path} holds {len(connections)} connection(s), numbered from 0: "
-                                      f"connection={selected} does not exist")
+                raise SerialException(
+                    f"{path} holds {len(connections)} connection(s), numbered from 0: "
+                    f"connection={selected} does not exist"
+                )
             connections = [connections[selected]]
         self._loaded_url, self._path, self._timing, self._strict = url, Path(path), timing, strict
         self._cursors = [_Cursor(connection) for connection in connections]
@@ -310,10 +316,15 @@ class Serial(SerialBase):
             cursor.consume_tx(len(data), time.monotonic())
             return len(data)
         first = next((i for i, (a, b) in enumerate(zip(expected, data, strict=False)) if a != b), len(expected))
-        where = (f"{self._path}:{lines[first]}" if first < len(lines) else
-                 f"{self._path}: after the last recorded write of the connection at line {cursor.connection.line}")
-        self._mismatch(f"replay mismatch at {where}: the driver wrote {data!r}, the recording has {expected!r} "
-                       f"(first difference at byte {first})")
+        where = (
+            f"{self._path}:{lines[first]}"
+            if first < len(lines)
+            else f"{self._path}: after the last recorded write of the connection at line {cursor.connection.line}"
+        )
+        self._mismatch(
+            f"replay mismatch at {where}: the driver wrote {data!r}, the recording has {expected!r} "
+            f"(first difference at byte {first})"
+        )
         cursor.consume_tx(first, time.monotonic())
         if cursor.next_tx_line() is not None:
             cursor.finish_tx_entry(time.monotonic())
@@ -348,11 +359,15 @@ class Serial(SerialBase):
             written = cursor.tx[cursor.tx_i].t
             self._virtual = written if written > self._virtual else self._virtual + max(self._timeout or 0.0, 1e-3)
         if line is None:
-            raise SerialException(f"disconnected: the recording {self._path} (connection at line "
-                                  f"{cursor.connection.line}) ends here, and the driver reads on")
+            raise SerialException(
+                f"disconnected: the recording {self._path} (connection at line "
+                f"{cursor.connection.line}) ends here, and the driver reads on"
+            )
         if self._timeout is None:
-            raise ReplayMismatch(f"{self._path}:{line}: the driver reads without a timeout (it would block "
-                                 "forever), but the recording has nothing to read before this write")
+            raise ReplayMismatch(
+                f"{self._path}:{line}: the driver reads without a timeout (it would block "
+                "forever), but the recording has nothing to read before this write"
+            )
         if self._timing == "real":
             time.sleep(self._timeout)
         return b""
@@ -379,10 +394,13 @@ class Serial(SerialBase):
                     time.sleep(event.waited)
                 return b""
             if event.kind == "close":
-                raise SerialException(f"disconnected: the recording closes the port at {self._path}:{event.line}, "
-                                      "and the driver reads on")
-            self._mismatch(f"replay mismatch at {self._path}:{event.line}: the recording discards {event.data!r} "
-                           "with reset_input_buffer() here, but the driver reads")
+                raise SerialException(
+                    f"disconnected: the recording closes the port at {self._path}:{event.line}, and the driver reads on"
+                )
+            self._mismatch(
+                f"replay mismatch at {self._path}:{event.line}: the recording discards {event.data!r} "
+                "with reset_input_buffer() here, but the driver reads"
+            )
             if event.data:
                 return cursor.take(size)
             cursor.rx_i += 1
@@ -396,8 +414,7 @@ class Serial(SerialBase):
         event = cursor.next_rx()
         if event is None or event.kind not in ("rx", "flush") or not cursor.available(event):
             return 0
-        if (self._timing == "real" and event.kind == "rx" and not cursor.rx_off
-                and cursor.due(event) > time.monotonic()):
+        if self._timing == "real" and event.kind == "rx" and not cursor.rx_off and cursor.due(event) > time.monotonic():
             return 0
         return len(event.data) - cursor.rx_off
 

@@ -28,9 +28,9 @@ from pathlib import Path
 import colour
 import numpy as np
 
-from kmpipe.joint_fit import predict_readings
-from kmpipe.spectra import SpectralTable, uniform_grid, write_spectra_csv
-from kmpipe.white import baso4_typical
+from kmpipe.formats.spectra import SpectralTable, uniform_grid, write_spectra_csv
+from kmpipe.physics.joint_fit import predict_readings
+from kmpipe.physics.white import baso4_typical
 
 HERE = Path(__file__).resolve().parent
 PIGMENTS = HERE.parents[2] / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
@@ -150,8 +150,7 @@ def write_emulator_files(folder: Path, name: str, spec: dict, cards: dict, K: np
         f'[sample]\nname = "{name}"\nproduct = "{spec["product"]}"\nkind = "{spec["kind"]}"\n\n'
         '[instrument]\nspeed = "normal"\nnd = "auto"\nrepeats = 1\n\n[white]\ncertified = "builtin:baso4"\n\n'
         '[[backing]]\nname = "black"\n\n[[backing]]\nname = "white"\n\n'
-        '[[masstone]]  # as thick as it takes to hide the backing: no thickness declared\n\n'
-        + "\n".join(films),
+        "[[masstone]]  # as thick as it takes to hide the backing: no thickness declared\n\n" + "\n".join(films),
         encoding="utf-8",
     )
 

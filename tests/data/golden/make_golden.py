@@ -52,7 +52,7 @@ def stage(folder: Path) -> Path:
 
 def render(staged: Path, scene: str, out_dir: Path) -> list[Path]:
     """Render ``scene`` from a :func:`stage` folder into ``out_dir``; its EXR frames in order."""
-    from kmpipe.render import render_scene
+    from kmpipe.stages.render import render_scene
 
     written = render_scene(staged / f"{scene}.toml", out_dir, ab_scattering=scene in AB_SCENES, echo=lambda _: None)
     return [p for p in written if p.suffix == ".exr"]

@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))  # run as a script: import kmpipe and instruments 
 
 from instruments.cs2000.emulator import Emulator, Fault, Measurement  # noqa: E402
 from kmpipe.cli import main  # noqa: E402
-from kmpipe.spectra import read_spectra_csv  # noqa: E402
+from kmpipe.formats.spectra import read_spectra_csv  # noqa: E402
 
 PLAN = ROOT / "recipes" / "samples" / "F1" / "plan.toml"
 SCRIPT = ROOT / "recipes" / "samples" / "F1" / "emulator.toml"

@@ -1,10 +1,10 @@
 """Closed-form Kubelka-Munk inversions: K and S from reflectances, per wavelength or camera channel.
 
 All functions take KM (body) reflectances; remove surface reflection first with
-:func:`kmpipe.saunderson.saunderson_inverse` if the readings include it. Arrays broadcast, wavelength
+:func:`kmpipe.physics.saunderson.saunderson_inverse` if the readings include it. Arrays broadcast, wavelength
 (or channel) last. Nothing returned is NaN, infinite or negative, for any readings (exact 0 and 1 and
 subnormals included) and any thickness X > 0, and no numpy RuntimeWarning is raised: where the readings
-cannot determine K and S, the element carries a :class:`~kmpipe.flags.Flag` saying what the finite value
+cannot determine K and S, the element carries a :class:`~kmpipe.physics.flags.Flag` saying what the finite value
 means instead. Readings outside [0, 1] (noise on a reading near 0 or 1) are used as they are where the
 model with K, S >= 0 still explains them, and are otherwise flagged OUT_OF_RANGE and taken as clipped to
 [0, 1]. K or S that would exceed the float64 range (a thickness near 0 for the readings) is set to the
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kmpipe.flags import Flag
-from kmpipe.kubelka_munk import ks_from_reflectance_infinite
+from kmpipe.physics.flags import Flag
+from kmpipe.physics.kubelka_munk import ks_from_reflectance_infinite
 
 #: Readings that agree to this relative tolerance (film over black vs over white, or film vs masstone)
 #: are treated as opaque: thickness is not identifiable there.

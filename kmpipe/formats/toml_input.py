@@ -15,8 +15,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from kmpipe import files
 from kmpipe.errors import InputError
+from kmpipe.formats import files
 
 
 class StrictModel(BaseModel):
@@ -58,9 +58,16 @@ def toml_line(text: str, loc: tuple) -> int | None:
             return best
         best = found + 1
         inner = dotted + "."
-        start, end = found + 1, next(
-            (n for n in range(found + 1, end) if (m := _HEADER.match(lines[n])) and not m.group(1).startswith(inner)),
-            end,
+        start, end = (
+            found + 1,
+            next(
+                (
+                    n
+                    for n in range(found + 1, end)
+                    if (m := _HEADER.match(lines[n])) and not m.group(1).startswith(inner)
+                ),
+                end,
+            ),
         )
         prefix = dotted
         i += 1 if index is None else 2

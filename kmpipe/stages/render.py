@@ -1,6 +1,6 @@
-"""``kmpipe render``: a scene file (:mod:`kmpipe.scene`) to linear EXR and sRGB PNG frames.
+"""``kmpipe render``: a scene file (:mod:`kmpipe.formats.scene`) to linear EXR and sRGB PNG frames.
 
-The materials' planned optical tables (:func:`kmpipe.render_plan.plan_render` on the scene's one stack, each
+The materials' planned optical tables (:func:`kmpipe.stages.render_plan.plan_render` on the scene's one stack, each
 material over the thickness range the scene gives it) feed the renderer's Kubelka-Munk layer pass
 (:mod:`renderer.layers`). In the ``rgb`` and ``bands:N`` modes the shader composes the films per channel from the
 tables (at most :data:`renderer.layers.MAX_CHANNELS` bands, so the planner tries no more); in ``exact`` mode the stack
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from kmpipe import files
-from kmpipe.albedo_texture import basis_spectra, texture_weights
 from kmpipe.errors import InputError
-from kmpipe.optical_tables import Stack, exact_stack, parse_mode, working_space
-from kmpipe.render_plan import RenderPlan, plan_render
-from kmpipe.scene import Scene, load_scene
+from kmpipe.formats import files
+from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
+from kmpipe.formats.scene import Scene, load_scene
+from kmpipe.physics.optical_tables import Stack, exact_stack, parse_mode, working_space
+from kmpipe.stages.render_plan import RenderPlan, plan_render
 
 #: Texels of a shadow map per pixel of the longer image side, and the bounds of the map's size.
 SHADOW_TEXELS_PER_PIXEL = 2
@@ -206,7 +206,8 @@ def skin_scattering(scene: Scene, enabled: bool = True):
 def _stack_input(plan: ScenePlan, scene: Scene):
     """The layer pass's stack: a ChannelStack from the planned tables, or a Precomposed stack in exact mode.
 
-    With an albedo texture the substrate is a per-texel mix of three basis spectra (:mod:`kmpipe.albedo_texture`),
+    With an albedo texture the substrate is a per-texel mix of three basis spectra
+    (:mod:`kmpipe.formats.albedo_texture`),
     reduced to the mode's channels like the films.
     """
     from renderer.layers import ChannelStack, LayerTable, Precomposed
@@ -233,7 +234,7 @@ def _stack_input(plan: ScenePlan, scene: Scene):
 
 
 def _albedo_weights(scene: Scene, albedo: np.ndarray, basis: np.ndarray, space) -> np.ndarray:
-    """:func:`kmpipe.albedo_texture.texture_weights`, its refusal said as bad input naming the scene's field."""
+    """:func:`kmpipe.formats.albedo_texture.texture_weights`, its refusal said as bad input naming the scene's field."""
     try:
         return texture_weights(albedo, basis, space)
     except ValueError as err:
@@ -252,7 +253,7 @@ def _on_grid(value: np.ndarray, rows: int, columns: int) -> np.ndarray:
 
 def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact mode: reflectance and over-black reflectance (3,), attenuation (n + 1, 3), or all over the grid of the
-    thickness maps and the albedo texture (see :func:`kmpipe.optical_tables.exact_stack`).
+    thickness maps and the albedo texture (see :func:`kmpipe.physics.optical_tables.exact_stack`).
 
     Maps of other sizes than the first are resampled to its grid (bilinear). Only distinct combinations of
     thicknesses (and albedo weights) are composed, in chunks, so a large map of few levels costs little.

@@ -36,10 +36,9 @@ from instruments.cs2000.protocol import WAVELENGTHS, CS2000Error, ProtocolError
 from instruments.session_log import SessionLogError, read_session_log
 from instruments.urlhandler.protocol_replay import parse_url
 from kmpipe import __version__
-from kmpipe.atomic_write import write_text_atomically
-from kmpipe.colorimetry import cmfs
 from kmpipe.errors import InputError
-from kmpipe.files import (
+from kmpipe.formats.atomic_write import write_text_atomically
+from kmpipe.formats.files import (
     name_problem,
     output_file,
     output_folder,
@@ -50,10 +49,11 @@ from kmpipe.files import (
     same_file,
     sha256,
 )
-from kmpipe.manifest import Thickness, parse_thickness_mm
-from kmpipe.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
-from kmpipe.toml_input import StrictModel, field_line, input_error, located_in, read_toml, toml_line
-from kmpipe.white import certified_reflectance, radiance_to_reflectance
+from kmpipe.formats.manifest import Thickness, parse_thickness_mm
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
+from kmpipe.formats.toml_input import StrictModel, field_line, input_error, located_in, read_toml, toml_line
+from kmpipe.physics.colorimetry import cmfs
+from kmpipe.physics.white import certified_reflectance, radiance_to_reflectance
 
 #: SPMS parameters of each speed mode name (internal ND: 0 off, 1 on, 2 auto).
 SPEED_MODES = {"normal": 0, "fast": 1, "multi-normal": 2, "manual": 3, "multi-fast": 4}

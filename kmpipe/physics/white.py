@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from kmpipe.errors import InputError
-from kmpipe.files import is_regular
-from kmpipe.spectra import (
+from kmpipe.formats.files import is_regular
+from kmpipe.formats.spectra import (
     CS2000_ERROR_SENTINEL,
     SpectralTable,
     format_number,
@@ -48,7 +48,7 @@ def baso4_typical(wavelengths_nm: Sequence[float] | np.ndarray) -> np.ndarray:
     """Typical reflectance (fraction) of a pressed/painted BaSO4 white standard at ``wavelengths_nm`` (nm).
 
     The built-in curve (``kmpipe/data/baso4_typical.csv``, 380-780 nm every 5 nm: about 0.95 at 380 nm,
-    0.975 at 400 nm, 0.985 over 450-700 nm) resampled with `kmpipe.spectra.resample` (Sprague). It is a
+    0.975 at 400 nm, 0.985 over 450-700 nm) resampled with `kmpipe.formats.spectra.resample` (Sprague). It is a
     typical curve, not a certificate. InputError if the grid extends beyond 380-780 nm.
     """
     return np.array(resample(_builtin_baso4_table(), wavelengths_nm).column("baso4"))

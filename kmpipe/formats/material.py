@@ -13,18 +13,18 @@ from pathlib import Path
 
 import numpy as np
 
-from kmpipe import files
-from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
-from kmpipe.files import name_problem
-from kmpipe.flags import Flag, wavelengths_by_flag
+from kmpipe.formats import files
+from kmpipe.formats.atomic_write import write_text_atomically
+from kmpipe.formats.files import name_problem
+from kmpipe.physics.flags import Flag, wavelengths_by_flag
 
 FORMAT = "kmpipe-material/1"
 KS_CONVENTION = "Kubelka-Munk: K/S = (1 - R_inf)^2 / (2 R_inf)"
 #: Largest K or S a material may hold (1/mm): one absorption or scattering event per nm of film, far beyond any
 #: pigment film, and small enough that the forward model's products (K X)^2 stay finite.
 MAX_COEFFICIENT_PER_MM = 1e9
-#: Largest film thickness a material's measurement may give (mm); the manifests' limit (kmpipe.manifest).
+#: Largest film thickness a material's measurement may give (mm); the manifests' limit (kmpipe.formats.manifest).
 MAX_THICKNESS_MM = 100.0
 #: Most entries of a material's grid, and the longest wavelength (nm) it may hold.
 MAX_GRID_POINTS = 100_000

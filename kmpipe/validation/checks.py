@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from kmpipe.colorimetry import delta_E_2000, reflectance_to_Lab
 from kmpipe.errors import InputError
-from kmpipe.files import is_regular, sha256
-from kmpipe.flags import Flag
-from kmpipe.joint_fit import predict_readings
-from kmpipe.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.material import Material, ResidualFigures, read_material
-from kmpipe.sample import Sample, load_sample
-from kmpipe.saunderson import saunderson_forward, saunderson_inverse
-from kmpipe.toml_input import read_toml
+from kmpipe.formats.files import is_regular, sha256
+from kmpipe.formats.material import Material, ResidualFigures, read_material
+from kmpipe.formats.sample import Sample, load_sample
+from kmpipe.formats.toml_input import read_toml
+from kmpipe.physics.colorimetry import delta_E_2000, reflectance_to_Lab
+from kmpipe.physics.flags import Flag
+from kmpipe.physics.joint_fit import predict_readings
+from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+from kmpipe.physics.saunderson import saunderson_forward, saunderson_inverse
 
 FORMAT = "kmpipe-validation/1"
 
@@ -80,7 +80,8 @@ class Thresholds:
 
     @classmethod
     def from_toml(cls, path: Path) -> Thresholds:
-        """Read ``[thresholds]`` from a TOML file (read as :func:`kmpipe.manifest.read_toml` reads: a regular file
+        """Read ``[thresholds]`` from a TOML file (read as :func:`kmpipe.formats.manifest.read_toml` reads: a regular
+        file
         within the TOML size limit); InputError naming the field on a bad value."""
         _, data = read_toml(Path(path), "validation config")
         extra = sorted(set(data) - {"thresholds"})

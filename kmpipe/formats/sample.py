@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from kmpipe.errors import InputError
-from kmpipe.files import regular_file
-from kmpipe.manifest import FitSettings, Manifest, load_manifest, parse_grid
-from kmpipe.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
-from kmpipe.toml_input import field_line
-from kmpipe.white import ReadingSource, certified_reflectance, radiance_to_reflectance
+from kmpipe.formats.files import regular_file
+from kmpipe.formats.manifest import FitSettings, Manifest, load_manifest, parse_grid
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
+from kmpipe.formats.toml_input import field_line
+from kmpipe.physics.white import ReadingSource, certified_reflectance, radiance_to_reflectance
 
 #: Default fitting step (nm) for finer data: 8x faster than 1 nm for a median Delta E 2000 of 0.04
 #: (docs/benchmarks.md, "Wavelength grid").

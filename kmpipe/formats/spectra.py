@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 from colour.algebra import CubicSplineInterpolator, PchipInterpolator, SpragueInterpolator
 
-from kmpipe import files
-from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
+from kmpipe.formats import files
+from kmpipe.formats.atomic_write import write_text_atomically
 
 FORMAT_KEY = "kmpipe-spectra"
 """Metadata key of the format version line; reading checks and removes it, writing always puts it first."""
@@ -273,7 +273,7 @@ def _parse_number(cell: str, what: str, path: Path, line: int, column: str) -> f
 
 def _read_text(path: Path) -> str:
     """The text of a spectral CSV: a regular UTF-8 file (a byte order mark is dropped) of at most
-    ``files.LIMITS["spectral CSV"]`` bytes (:func:`kmpipe.files.read_text`)."""
+    ``files.LIMITS["spectral CSV"]`` bytes (:func:`kmpipe.formats.files.read_text`)."""
     return files.read_text(path, "spectral CSV", encoding="utf-8-sig")
 
 

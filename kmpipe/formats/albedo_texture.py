@@ -1,6 +1,7 @@
 """Albedo textures: a substrate (skin) whose colour varies over the mesh's uv, kept spectral.
 
-An albedo texture gives the substrate's linear RGB albedo A(uv) in the working space (:mod:`kmpipe.optical_tables`).
+An albedo texture gives the substrate's linear RGB albedo A(uv) in the working space
+(:mod:`kmpipe.physics.optical_tables`).
 Rendering composes films per wavelength or band, so each texel needs a reflectance spectrum. It is built from the
 substrate's measured spectrum S(l) split into three basis spectra, S_c(l) = S(l) B_c(l) with
 B_c(l) = max(W_c(l), 0) / sum_c' max(W_c'(l), 0) (W the working-space weights: B_c is the share of channel c at each
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kmpipe.optical_tables import WorkingSpace
+from kmpipe.physics.optical_tables import WorkingSpace
 
 
 def basis_spectra(substrate: np.ndarray, space: WorkingSpace) -> np.ndarray:

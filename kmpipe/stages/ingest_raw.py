@@ -32,13 +32,13 @@ from instruments.drawdown_card import (
     sample_region,
 )
 from instruments.raw_photo import RawPhotoError, read_raw, tone_mapped_8bit
-from kmpipe.atomic_write import write_text_atomically
-from kmpipe.colorimetry import white_XYZ
-from kmpipe.colour_correction import fit_camera_to_XYZ
 from kmpipe.errors import InputError
-from kmpipe.files import safe_name
-from kmpipe.manifest import parse_thickness_mm
-from kmpipe.spectra import SpectralTable, write_spectra_csv
+from kmpipe.formats.atomic_write import write_text_atomically
+from kmpipe.formats.files import safe_name
+from kmpipe.formats.manifest import parse_thickness_mm
+from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
+from kmpipe.physics.colorimetry import white_XYZ
+from kmpipe.physics.colour_correction import fit_camera_to_XYZ
 
 #: Largest fraction of a region's pixels that may be clipped (at the sensor's white level).
 MAX_CLIPPED = 0.001

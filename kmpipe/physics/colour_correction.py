@@ -2,12 +2,13 @@
 
 The reference is colour-science's 'ColorChecker N Ohta' set: 24 spectral reflectances (380-780 nm, 5 nm) of the
 classic chart, in the standard order (dark skin ... black). Their XYZ under the chosen CIE illuminant and observer
-(:func:`kmpipe.colorimetry.reflectance_to_XYZ`, Y = 100 for the perfect white, 5 nm grid) are the targets.
+(:func:`kmpipe.physics.colorimetry.reflectance_to_XYZ`, Y = 100 for the perfect white, 5 nm grid) are the targets.
 
 The fit (:func:`fit_camera_to_XYZ`) is ordinary (optionally weighted) linear least squares for the 3 x 3 matrix M
 with XYZ ~= camera_rgb @ M.T, then scaled by one factor so that the white patch's fitted Y equals its reference Y: the
 camera's exposure and the paper-to-chart light level drop out, and the matrix gives XYZ on the reference scale. The
-fit quality is reported as CIE Delta E 2000 (:func:`kmpipe.colorimetry.delta_E_2000`) per patch between the fitted
+fit quality is reported as CIE Delta E 2000 (:func:`kmpipe.physics.colorimetry.delta_E_2000`) per patch between the
+fitted
 and the reference colours, CIELAB relative to the perfect white under the same illuminant.
 
 Why not ``cv2.ccm.ColorCorrectionModel`` (opencv-contrib 5.x, which can minimize Delta E 2000 directly): it expects
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import colour
 import numpy as np
 
-from kmpipe.colorimetry import delta_E_2000, reflectance_to_XYZ, white_XYZ
+from kmpipe.physics.colorimetry import delta_E_2000, reflectance_to_XYZ, white_XYZ
 
 __all__ = ["CHART", "CameraMatrix", "fit_camera_to_XYZ", "reference_XYZ"]
 

@@ -23,6 +23,7 @@ OBSERVERS = {
     "10": "CIE 1964 10 Degree Standard Observer",
 }
 
+
 def illuminant_key(name: str) -> str:
     """colour-science's key of the CIE illuminant ``name``, the one resolver of illuminant names for scenes, recipes
     and validation: case-insensitive; the CIE's F1 ... F12 and F3.1 ... F3.15 are colour-science's FL1 ... (and FL

@@ -2,7 +2,7 @@
 
 The plan lists the materials, stacks and thickness ranges (mm) in use; picks the cheapest render mode, in the
 order rgb, bands:3, bands:6, bands:9, ... (N below the number of wavelengths), exact, whose largest Delta E 2000
-against the exact spectral result on the scene's own stacks (:func:`kmpipe.optical_tables.mode_error`) is within
+against the exact spectral result on the scene's own stacks (:func:`kmpipe.physics.optical_tables.mode_error`) is within
 the accuracy target; sizes each thickness axis so that linear interpolation adds at most
 :data:`INTERPOLATION_FRACTION` of the target; and drops what the scene does not need.
 """
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import colour
 import numpy as np
 
-from kmpipe.optical_tables import (
+from kmpipe.physics.optical_tables import (
     FilmCoefficients,
     OpticalTable,
     Stack,

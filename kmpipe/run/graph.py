@@ -60,10 +60,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from kmpipe import __version__
-from kmpipe.atomic_write import write_text_atomically
 from kmpipe.errors import InputError
-from kmpipe.files import is_regular, read_text, sha256, within
-from kmpipe.recipe import Recipe, inside, load_recipe, slug
+from kmpipe.formats.atomic_write import write_text_atomically
+from kmpipe.formats.files import is_regular, read_text, sha256, within
+from kmpipe.formats.recipe import Recipe, inside, load_recipe, slug
 
 #: Frames of a product rendered by one task.
 FRAMES_PER_TASK = 4
@@ -76,7 +76,8 @@ LOCK = STATE / "lock"
 #: Where the products' materials and sessions live, under the output folder.
 PRODUCTS = Path("products")
 #: Names of the temporary files kmpipe's writers make beside their targets (deleted at the start of a run):
-#: kmpipe.atomic_write's ``.NAME.<16 hex>.tmp`` and renderer.image_io's ``.STEM.<8 of a-z 0-9 _>.exr`` / ``.png``
+#: kmpipe.formats.atomic_write's ``.NAME.<16 hex>.tmp`` and renderer.image_io's ``.STEM.<8 of a-z 0-9 _>.exr`` /
+#: ``.png``
 #: (mkstemp).
 TEMPORARY = re.compile(r"\..+\.[0-9a-f]{16}\.tmp|\..+\.[a-z0-9_]{8}\.(?:exr|png)")
 
@@ -123,10 +124,10 @@ def do_material(source: str, inputs: dict, out: str) -> dict:
 
     from rich.console import Console
 
-    from kmpipe.fitting import fit_sample, provenance
-    from kmpipe.material import write_material
-    from kmpipe.measure import run_session
-    from kmpipe.sample import load_sample
+    from kmpipe.formats.material import write_material
+    from kmpipe.formats.sample import load_sample
+    from kmpipe.stages.fit import fit_sample, provenance
+    from kmpipe.stages.measure import run_session
 
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
@@ -183,8 +184,8 @@ def _refuse_symlinks(folder: Path) -> None:
 
 def do_validate(material: str, out: str, illuminants: list[str], thresholds: dict) -> dict:
     """Validate a fitted material and write its report into ``out``; its verdict and reasons."""
-    from kmpipe.report import write_sample_report
-    from kmpipe.validation import Thresholds, validate_material
+    from kmpipe.validation.checks import Thresholds, validate_material
+    from kmpipe.validation.report import write_sample_report
 
     report = validate_material(material, illuminants=tuple(illuminants), thresholds=Thresholds(**thresholds))
     write_sample_report(report, Path(out))
@@ -210,8 +211,8 @@ def _recipe(path: str) -> Recipe:
 
 def do_render(recipe: str, product: str, materials: dict, out: str, frames: list[int], header: dict) -> dict:
     """Render frames of a product's turntable into ``out``."""
-    from kmpipe.render import render_scene
-    from kmpipe.scene import build_scene
+    from kmpipe.formats.scene import build_scene
+    from kmpipe.stages.render import render_scene
 
     folder = Path(out)
     todo = [i for i in frames if not _frame_done(folder, i, header.get("task_key"))]
@@ -240,7 +241,7 @@ def _frame_done(folder: Path, frame: int, key: str | None) -> bool:
 
 def do_reports(entries: list[tuple[str, str]], out: str) -> dict:
     """The validation index over (validation.json, report.html) pairs."""
-    from kmpipe.report import write_index
+    from kmpipe.validation.report import write_index
 
     documents = [(json.loads(read_text(doc, "JSON")), Path(page)) for doc, page in entries]
     return {"index": str(write_index(documents, Path(out)))}
@@ -566,15 +567,16 @@ def _mark_cached(plan: RunPlan) -> None:
 
 def _manifest_inputs(manifest: Path) -> dict[str, Path]:
     """The files a manifest's fit reads besides the manifest (its measurement CSVs), by name."""
-    from kmpipe.sample import load_sample
+    from kmpipe.formats.sample import load_sample
 
     return {f"input:{i}": Path(p) for i, p in enumerate(load_sample(manifest).inputs)}
 
 
 def _scene_files(recipe: Recipe, data: dict, hashed: Callable[[Path], str]) -> dict[str, str]:
-    """SHA-256 of the files a product's scene reads besides materials (:func:`kmpipe.scene.referenced_files`), by
+    """SHA-256 of the files a product's scene reads besides materials
+    (:func:`kmpipe.formats.scene.referenced_files`), by
     their path relative to the recipe."""
-    from kmpipe.scene import SceneFile, referenced_files
+    from kmpipe.formats.scene import SceneFile, referenced_files
 
     paths = referenced_files(SceneFile.model_validate(data), recipe.base)  # checked when the recipe was loaded
     return {os.path.relpath(p, recipe.base): hashed(p) for p in paths if is_regular(p)}
@@ -653,9 +655,7 @@ class _Dask:
 
         self.cluster = None
         if address is None:
-            self.cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-            )
+            self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
         try:
             self.client = Client(address or self.cluster.scheduler_address, timeout=10)
         except Exception as err:  # whatever Dask raises, the address is what to fix

@@ -74,8 +74,11 @@ def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
         beta_half = np.where(
             big,
             np.sqrt(K) * np.sqrt(0.25 * K + 0.5 * S),
-            np.where(tiny, 0.5 * (np.sqrt(K_tiny) * np.sqrt(K_tiny + 2.0 * np.where(tiny, S, 0.0))),
-                     0.5 * np.sqrt(K_mid * (K_mid + 2.0 * S_mid))),
+            np.where(
+                tiny,
+                0.5 * (np.sqrt(K_tiny) * np.sqrt(K_tiny + 2.0 * np.where(tiny, S, 0.0))),
+                0.5 * np.sqrt(K_mid * (K_mid + 2.0 * S_mid)),
+            ),
         )
     else:
         beta_half = 0.5 * np.sqrt(K * (K + 2.0 * S))

@@ -3,10 +3,10 @@
 Methods (``kmpipe fit --method``):
 
 - ``two-constant``: masstone R_inf and each film over its backing, thesis eq. 4.1 in real form
-  (:func:`kmpipe.inversion.two_constant`); estimates from several films are averaged.
-- ``black-white``: films of one thickness over two backings (:func:`kmpipe.inversion.black_white`);
+  (:func:`kmpipe.physics.inversion.two_constant`); estimates from several films are averaged.
+- ``black-white``: films of one thickness over two backings (:func:`kmpipe.physics.inversion.black_white`);
   estimates from several thicknesses are averaged.
-- ``lsq``: every measurement at once (:func:`kmpipe.joint_fit.fit_joint`), started from black-white
+- ``lsq``: every measurement at once (:func:`kmpipe.physics.joint_fit.fit_joint`), started from black-white
   when the sample has such pairs and from two-constant otherwise.
 
 Averaging uses only unflagged estimates; where every estimate is flagged, the largest S (the tightest
@@ -24,13 +24,13 @@ import numpy as np
 
 from kmpipe import __version__
 from kmpipe.errors import InputError
-from kmpipe.files import sha256
-from kmpipe.flags import Flag
-from kmpipe.inversion import Inversion, black_white, two_constant
-from kmpipe.joint_fit import fit_joint, predict_readings, standard_errors
-from kmpipe.material import MAX_COEFFICIENT_PER_MM, Material, MeasurementFit
-from kmpipe.sample import Sample
-from kmpipe.saunderson import saunderson_inverse
+from kmpipe.formats.files import sha256
+from kmpipe.formats.material import MAX_COEFFICIENT_PER_MM, Material, MeasurementFit
+from kmpipe.formats.sample import Sample
+from kmpipe.physics.flags import Flag
+from kmpipe.physics.inversion import Inversion, black_white, two_constant
+from kmpipe.physics.joint_fit import fit_joint, predict_readings, standard_errors
+from kmpipe.physics.saunderson import saunderson_inverse
 
 
 def _combine(inversions: list[Inversion]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -27,13 +27,13 @@ import numpy as np
 import trimesh
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from kmpipe import files
-from kmpipe.colorimetry import illuminant_key
 from kmpipe.errors import InputError
-from kmpipe.manifest import ThicknessOrZero, parse_thickness_mm
-from kmpipe.material import Material, read_material
-from kmpipe.optical_tables import parse_mode
-from kmpipe.toml_input import StrictModel, input_error, located_in, read_toml
+from kmpipe.formats import files
+from kmpipe.formats.manifest import ThicknessOrZero, parse_thickness_mm
+from kmpipe.formats.material import Material, read_material
+from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml
+from kmpipe.physics.colorimetry import illuminant_key
+from kmpipe.physics.optical_tables import parse_mode
 
 #: Most films in one stack (the layer pass's limit, renderer.layers.MAX_LAYERS).
 MAX_LAYERS = 4
@@ -286,7 +286,7 @@ class Scene:
 
 def _reflectance(value: float | str, wavelengths: np.ndarray, base: Path, where: dict) -> np.ndarray:
     """A flat reflectance, a ColorChecker patch or a spectral CSV column, on ``wavelengths`` (nm)."""
-    from kmpipe.spectra import read_spectra_csv, resample
+    from kmpipe.formats.spectra import read_spectra_csv, resample
 
     if not isinstance(value, str):
         return np.full(len(wavelengths), float(value))

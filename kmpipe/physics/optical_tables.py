@@ -1,7 +1,7 @@
 """Optical tables for rendering Kubelka-Munk films: R0 and T per thickness, in a linear RGB working space.
 
 Colour (method notes, "Colour"): reflectance spectra R(l) under the scene illuminant S(l) become CIE XYZ
-(colour-science integration on the spectra's own grid, the same as :mod:`kmpipe.colorimetry`), are adapted
+(colour-science integration on the spectra's own grid, the same as :mod:`kmpipe.physics.colorimetry`), are adapted
 by CAT02 from the white of the illuminant to D65 and are expressed in linear sRGB / Rec.709. All of this is
 linear in R, so it is one weight matrix W (n_wavelengths x 3): linear RGB = R(l) @ W.
 
@@ -26,12 +26,13 @@ from typing import Protocol
 import colour
 import numpy as np
 
-from kmpipe.colorimetry import reflectance_to_XYZ
-from kmpipe.kubelka_munk import film_reflectance_transmittance, stack_over_substrate
+from kmpipe.physics.colorimetry import reflectance_to_XYZ
+from kmpipe.physics.kubelka_munk import film_reflectance_transmittance, stack_over_substrate
 
 
 class FilmCoefficients(Protocol):
-    """What the tables need of a material (``kmpipe.material.Material`` qualifies): K, S per mm on a grid in nm."""
+    """What the tables need of a material (``kmpipe.formats.material.Material`` qualifies): K, S per mm on a grid in
+    nm."""
 
     name: str
     wavelengths: np.ndarray
@@ -244,7 +245,7 @@ def composite(tables: Sequence[OpticalTable], thicknesses, substrate, mode: str)
     """Linear working-space RGB of a stack of films (``tables[0]`` on top) over a substrate, in ``mode``.
 
     The layers are composed bottom-up onto the substrate by eqs. 3.13 / 3.14
-    (:func:`kmpipe.kubelka_munk.stack_over_substrate`) in the mode's channels, then converted once:
+    (:func:`kmpipe.physics.kubelka_munk.stack_over_substrate`) in the mode's channels, then converted once:
     ``rgb`` per RGB channel (result as is), ``bands:N`` per band (then @ to_rgb), ``exact`` per wavelength
     (then @ W).
 

@@ -14,10 +14,10 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, Field, ValidationError, field_validator, model_validator
 
-from kmpipe import files
 from kmpipe.errors import InputError
-from kmpipe.spectra import uniform_grid
-from kmpipe.toml_input import StrictModel, first_validation_error, format_field, read_toml, toml_line
+from kmpipe.formats import files
+from kmpipe.formats.spectra import uniform_grid
+from kmpipe.formats.toml_input import StrictModel, first_validation_error, format_field, read_toml, toml_line
 
 METHODS = ("two-constant", "black-white", "lsq")
 #: Thickest film a TOML format may give (mm): far beyond any drawdown, small enough that (K X)^2 stays finite for
@@ -95,7 +95,7 @@ def parse_grid(text: str) -> tuple[float, float, float]:
 
 
 def _file_name(value: str) -> str:
-    """A name that becomes a file name (:func:`kmpipe.files.name_problem`)."""
+    """A name that becomes a file name (:func:`kmpipe.formats.files.name_problem`)."""
     problem = files.name_problem(value)
     if problem is not None:
         raise ValueError(problem)

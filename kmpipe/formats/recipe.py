@@ -1,7 +1,8 @@
 """Recipe files (TOML) for ``kmpipe run``: a product line, where its materials come from, and how to render it.
 
 A recipe names the line (illuminant, accuracy or render mode), the validation thresholds, the scene every product is
-rendered in (the tables of a scene file, :mod:`kmpipe.scene`, at the top level: ``[scene]`` without name, product
+rendered in (the tables of a scene file, :mod:`kmpipe.formats.scene`, at the top level: ``[scene]`` without name,
+product
 and shade, ``[substrate]`` or ``[skin]``, ``[[light]]``, ``[ground]``, ``[camera]``, ``[turntable]``, ``[output]``;
 no ``[[layer]]``), the products and the outputs. Each product has a name, a shade, where its material comes from (a
 CS-2000 session to measure live and fit, a recorded session to replay and fit, measurements to fit, or a material
@@ -25,10 +26,10 @@ from typing import Any
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
-from kmpipe.files import UNLIMITED, regular_file
-from kmpipe.scene import MAX_LAYERS, RenderSettings, SceneFile
-from kmpipe.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
-from kmpipe.validation import Thresholds
+from kmpipe.formats.files import UNLIMITED, regular_file
+from kmpipe.formats.scene import MAX_LAYERS, RenderSettings, SceneFile
+from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
+from kmpipe.validation.checks import Thresholds
 
 #: The material of the product itself, in its layer stack.
 SELF = "self"
@@ -221,7 +222,7 @@ class Recipe:
 def inside(out_dir: Path, relative: str, where: dict) -> Path:
     """``out_dir / relative`` with its ``.`` and ``..`` taken out, refused (InputError at ``where``) if ``relative``
     is absolute or climbs out of ``out_dir``. This is the recipe's text; symlinks in the output folder are checked
-    where the run writes (:mod:`kmpipe.run`)."""
+    where the run writes (:mod:`kmpipe.run.graph`)."""
     normal = os.path.normpath(relative)
     if Path(relative).is_absolute() or normal == os.pardir or normal.startswith(os.pardir + os.sep):
         raise InputError(f"{relative!r} would write outside the output folder; give a path inside it", **where)

@@ -6,7 +6,7 @@ Model: measurement i at wavelength j reads
                         R_ij = R_inf(K_j, S_j)                (masstone: X_i = inf)
 
 with F the Saunderson correction (identity when off) and R_KM the film-over-background reflectance of
-:mod:`kmpipe.kubelka_munk`. The fit minimizes
+:mod:`kmpipe.physics.kubelka_munk`. The fit minimizes
 
     (1 / m n) sum_ij (R_m,ij - y_ij)^2 + (lambda / n) sum_j [(d2 K_j / K_bar)^2 + (d2 S_j / S_bar)^2]
 
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import nlopt
 import numpy as np
 
-from kmpipe.flags import Flag
-from kmpipe.kubelka_munk import _sech, _tanhc
-from kmpipe.saunderson import saunderson_forward, saunderson_slope
+from kmpipe.physics.flags import Flag
+from kmpipe.physics.kubelka_munk import _sech, _tanhc
+from kmpipe.physics.saunderson import saunderson_forward, saunderson_slope
 
 ALGORITHM = "LD_LBFGS"
 

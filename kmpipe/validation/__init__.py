@@ -1,0 +1,1 @@
+"""Validating a material against its measurements: checks, noise statistics, thresholds, HTML reports."""
