@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import nlopt
 import numpy as np
-from common import NOISE, Pigments, Table, card_black, card_white, delta_e_2000, load_pigments, random_recipes
+from common import NOISE, Pigments, Table, delta_e_2000, load_pigments, random_recipes
+from simulated_drawdowns import cards  # on sys.path through common
 
 from kmpipe.physics.inversion import black_white
 from kmpipe.physics.joint_fit import fit_joint
@@ -86,14 +87,14 @@ def make_samples(pigments: Pigments, count: int, seed: int, saunderson=None) -> 
     """``count`` samples on the pigments' wavelength grid; the same seed gives the same mixtures and noise."""
     rng = np.random.default_rng(seed)
     w = pigments.wavelengths
-    cards = {"black": card_black(w), "white": card_white(w)}
+    backings = cards(w)
     recipes = random_recipes(rng, count, len(pigments.names), pigments.white)
     samples = []
     for c in recipes:
         K, S = c @ pigments.K, c @ pigments.S
         films = {label: rng.uniform(*bounds) for label, bounds in THICKNESS.items()}
         thickness = np.array([films.get(label, np.inf) for label, _ in LAYOUT])
-        backgrounds = np.array([cards[backing] for _, backing in LAYOUT])
+        backgrounds = np.array([backings[backing] for _, backing in LAYOUT])
         clean = predict(K, S, thickness, backgrounds)
         measured = clean if saunderson is None else saunderson_forward(clean, *saunderson)
         readings = measured + NOISE * rng.standard_normal(clean.shape)

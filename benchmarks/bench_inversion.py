@@ -1,8 +1,8 @@
 """Benchmark: closed-form K, S inversions on 100,000 spectra x 401 wavelengths (380-780 nm, 1 nm).
 
 Inputs are simulated drawdowns of realistic paint mixtures (see :mod:`common`): titanium white plus one
-to three RIT paints per spectrum (Duncan mixing), films 10-60 um thick, read over the black (~0.03) and
-white (~0.85) halves of a card and as a masstone, with Gaussian reading noise of 0.002. Curtis's method
+to three RIT paints per spectrum (Duncan mixing), films 10-60 um thick, read over the black (~0.035-0.041) and
+white (~0.78-0.86) halves of a card and as a masstone, with Gaussian reading noise of 0.002. Curtis's method
 assumes ideal backings, so it gets its own readings over backgrounds of exactly 0 and 1.
 
 Reported per method, on noisy and on noise-free readings:
@@ -35,14 +35,13 @@ from common import (
     Pigments,
     Table,
     best_of,
-    card_black,
-    card_white,
     load_pigments,
     peak_rss_mib,
     random_recipes,
     sig,
     wavelength_grid,
 )
+from simulated_drawdowns import cards  # on sys.path through common
 
 from kmpipe.physics.inversion import black_white, curtis, two_constant
 from kmpipe.physics.kubelka_munk import film_over_background, film_reflectance_transmittance, reflectance_infinite
@@ -103,7 +102,8 @@ def make_problem(n_spectra: int = N_SPECTRA, seed: int = 20240611) -> Problem:
     rng = np.random.default_rng(seed)
     C = random_recipes(rng, n_spectra, len(pigments.names), pigments.white)
     X = rng.uniform(*THICKNESS_RANGE, size=(n_spectra, 1))
-    return Problem(pigments, C, X, card_black(wavelengths), card_white(wavelengths), seed)
+    backings = cards(wavelengths)
+    return Problem(pigments, C, X, backings["black"], backings["white"], seed)
 
 
 # ---------------------------------------------------------------------------- plain Python loops (reference)
@@ -483,8 +483,8 @@ def tables(results: dict) -> list[Table]:
             f"times are the best of {info['repeats']} runs on the whole array; the loop is timed on "
             f"{info['loop_values']:,} values and scaled per value",
             *loop_notes,
-            "inputs: titanium white + 1-3 RIT Golden acrylics (Duncan mixing), 10-60 um films; cards ~0.03 / "
-            "~0.85 (curtis: ideal 0 / 1); two_constant: masstone and the film over black; noise sd 0.002",
+            "inputs: titanium white + 1-3 RIT Golden acrylics (Duncan mixing), 10-60 um films; cards ~0.035-0.041 / "
+            "~0.78-0.86 (curtis: ideal 0 / 1); two_constant: masstone and the film over black; noise sd 0.002",
             f"peak resident memory of the benchmark process: {info['peak_rss_mib'] / 1024:.2f} GiB",
         ],
     )

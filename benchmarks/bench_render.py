@@ -19,7 +19,8 @@ from common import REPO, Table
 
 from kmpipe.cli import main as kmpipe_main
 from kmpipe.formats.scene import load_scene
-from kmpipe.stages.render import plan_scene, render_scene
+from kmpipe.stages.render import render_scene
+from kmpipe.stages.render_plan import plan_scene
 
 FRAMES = 36
 MODES = ("rgb", "bands:6", "bands:12", "exact")
@@ -75,10 +76,11 @@ def run() -> list[list[str]]:
             for size in SIZES:
                 scene = folder / f"{mode.replace(':', '')}_{size}.toml"
                 scene.write_text(SCENE.format(size=size, mode=mode, frames=FRAMES), encoding="utf-8")
-                plan = plan_scene(load_scene(scene)).tables
-                chosen = next(c for c in plan.candidates if c.mode == plan.mode)
+                loaded = load_scene(scene)
+                plan = plan_scene(loaded)
+                chosen = next(c for c in plan.tables.candidates if c.mode == plan.mode)
                 start = time.perf_counter()
-                render_scene(scene, folder / scene.stem, echo=lambda _: None)
+                render_scene(loaded, folder / scene.stem, plan=plan, echo=lambda _: None)
                 seconds = time.perf_counter() - start
                 rows.append(
                     [

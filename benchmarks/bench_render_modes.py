@@ -18,7 +18,7 @@ from common import Table, load_pigments
 
 from kmpipe.physics.optical_tables import OpticalTable, Stack, band_partition, mode_error, working_space
 from kmpipe.stages.render_plan import DEFAULT_TARGET_DE, plan_render
-from renderer.layers import MAX_CHANNELS
+from renderer.stack import MAX_CHANNELS
 
 MODES = ("rgb", "bands:3", "bands:6", "bands:9", "bands:12")
 

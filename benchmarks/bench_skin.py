@@ -9,9 +9,10 @@ the eight blur passes and their accumulation):
 - "skin fills the frame": the same head seen from 16 cm, a close-up of the face in which every pixel is skin and is
   blurred: what a blur of the full frame costs.
 
-Frames are rendered in-process through kmpipe's scene planning and renderer.skin.render_skin (no file writing),
-after a warm-up frame; the median of REPEATS. Target from the issue: a full frame with skin, three makeup layers,
-shadows and SSS at 512 x 512 in under 0.3 s on this 2-core machine.
+Frames are rendered in-process, kmpipe's plan and renderer scene of each (kmpipe.stages.render.renderer_scenes)
+drawn by renderer.skin.render_skin (no file writing), after a warm-up frame; the median of REPEATS. Target from the
+issue: a full frame with skin, three makeup layers, shadows and SSS at 512 x 512 in under 0.3 s on this 2-core
+machine.
 
 Run alone: ``.venv/bin/python benchmarks/bench_skin.py``.
 """
@@ -28,7 +29,9 @@ from common import REPO, Table
 
 from kmpipe.cli import main as kmpipe_main
 from kmpipe.formats.scene import load_scene
-from kmpipe.stages.render import _lights, _stack_input, camera_for, layer_lobes, plan_scene, skin_lobe, skin_scattering
+from kmpipe.stages.render import renderer_scenes
+from kmpipe.stages.render_plan import plan_scene
+from renderer.skin import render_skin
 
 SIZES = (512, 1024)
 REPEATS = 5
@@ -63,24 +66,12 @@ def _scenes(folder: Path) -> dict[str, Path]:
 
 def _measure(path: Path) -> tuple[float, float, float, str]:
     """Skin share of the frame, median seconds per frame with and without scattering, and the planned mode."""
-    from renderer.skin import render_skin
-
     scene = load_scene(path)
     plan = plan_scene(scene)
-    stack, camera, lights = _stack_input(plan, scene), camera_for(scene), _lights(scene, plan)
-    width, height = scene.info.scene.resolution
-    options = {
-        "specular": layer_lobes(scene),
-        "skin_specular": skin_lobe(scene),
-        "shadow_map_size": plan.shadow_map_size or 512,
-    }
-
-    def frame(scattering):
-        return render_skin(scene.mesh, camera, lights, stack, width, height, scattering=scattering, **options)
-
-    blur = skin_scattering(scene)
-    skin_share = float(np.mean(frame(blur).sum(axis=-1) > 0.0))  # the warm-up frame: shaders, context size
-    return skin_share, _time(lambda: frame(blur)), _time(lambda: frame(None)), plan.mode
+    [with_sss] = renderer_scenes(scene, plan, [0.0])
+    [without] = renderer_scenes(scene, plan, [0.0], scattering=False)
+    skin_share = float(np.mean(render_skin(with_sss).sum(axis=-1) > 0.0))  # the warm-up frame: shaders, context size
+    return skin_share, _time(lambda: render_skin(with_sss)), _time(lambda: render_skin(without)), plan.mode
 
 
 def run() -> list[list[str]]:

@@ -2,17 +2,17 @@
 
 Benchmarks measure speed and accuracy and print them; they never assert (speed does not go into tests).
 
-Realistic inputs come from the RIT Artist Paint Spectral Database table of Golden Heavy Body acrylics
-(``/work/shared/data/pigments/rit_golden_acrylic_ks.csv``, 380-750 nm every 10 nm). That table's K and S
-are on a relative scale (titanium white S = 1); both are multiplied by :data:`KS_SCALE` and read as 1/mm,
-which keeps each paint's measured K/S (its masstone colour) and gives a titanium white S of 10/mm, so that
-10-60 um films are neither transparent nor opaque. Mixtures follow Duncan's rule (K = sum c_i K_i,
-S = sum c_i S_i).
+Realistic inputs come from the RIT Artist Paint Spectral Database table of Golden Heavy Body acrylics and the
+card of the bundled example samples, both from ``recipes/samples/simulated_drawdowns.py`` (shared with that
+folder's ``simulate_samples.py`` and the tests; the table lives in the shared data folder,
+``pigments/rit_golden_acrylic_ks.csv``, 380-750 nm every 10 nm). That table's K and S are on a relative scale
+(titanium white S = 1); both are multiplied by :data:`KS_SCALE` and read as 1/mm, which keeps each paint's measured
+K/S (its masstone colour) and gives a titanium white S of 10/mm, so that 10-60 um films are neither transparent nor
+opaque. Mixtures follow Duncan's rule (K = sum c_i K_i, S = sum c_i S_i).
 """
 
 from __future__ import annotations
 
-import csv
 import datetime
 import gc
 import hashlib
@@ -20,6 +20,7 @@ import os
 import platform
 import resource
 import subprocess
+import sys
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -32,7 +33,9 @@ import numpy as np
 from kmpipe.physics.kubelka_munk import film_over_background, film_reflectance_transmittance, reflectance_infinite
 
 REPO = Path(__file__).resolve().parent.parent
-PIGMENT_TABLE = Path("/work/shared/data/pigments/rit_golden_acrylic_ks.csv")
+sys.path.insert(0, str(REPO / "recipes" / "samples"))  # the simulated drawdowns shared with the samples and tests
+from simulated_drawdowns import rit_pigments  # noqa: E402
+
 #: Relative K and S of the RIT table times this = coefficients per mm (titanium white S = 10/mm).
 KS_SCALE = 10.0
 #: Reading noise (reflectance units, one standard deviation), about the spread of repeated drawdown readings.
@@ -61,39 +64,17 @@ def wavelength_grid(step: int, start: int = 380, stop: int = 780) -> np.ndarray:
     return np.arange(start, stop + 1, step, dtype=np.float64)
 
 
-@cache
-def _pigment_rows() -> tuple[np.ndarray, dict[tuple[str, str], np.ndarray]]:
-    rows = [row for row in csv.reader(PIGMENT_TABLE.open()) if row and not row[0].startswith("#")]
-    header, body = rows[0], rows[1:]
-    table_wavelengths = np.array([float(v) for v in header[3:]])
-    values = {(row[0], row[2]): np.array([float(v) for v in row[3:]]) for row in body}
-    return table_wavelengths, values
-
-
 def load_pigments(wavelengths: np.ndarray, kind: str = "linear") -> Pigments:
-    """The RIT paints on ``wavelengths``, the 380 and 750 nm values held beyond the table (up to 780 nm).
+    """The RIT paints x :data:`KS_SCALE` on ``wavelengths``, the 380 and 750 nm values held beyond the table.
 
-    kind "linear" interpolates linearly between the 10 nm table values; "pchip" uses a monotone cubic
-    (scipy's PchipInterpolator), which has no kinks at the table wavelengths: use it where a spectrum that is
-    exactly piecewise linear on the 10 nm grid would flatter 10 nm sampling.
+    ``kind``: "linear" or "pchip" (a monotone cubic without kinks at the table's wavelengths: use it where a spectrum
+    that is exactly piecewise linear on the 10 nm grid would flatter 10 nm sampling); see
+    ``simulated_drawdowns.Pigments.on``.
     """
-    table_wavelengths, values = _pigment_rows()
-    names = tuple(dict.fromkeys(name for name, _ in values))
-    w = np.clip(np.asarray(wavelengths, dtype=np.float64), table_wavelengths[0], table_wavelengths[-1])
-    if kind == "linear":
-
-        def interpolate(v):
-            return np.interp(w, table_wavelengths, v)
-    elif kind == "pchip":
-        from scipy.interpolate import PchipInterpolator
-
-        def interpolate(v):
-            return PchipInterpolator(table_wavelengths, v)(w)
-    else:
-        raise ValueError(f"unknown interpolation {kind!r}")
-    K = np.array([interpolate(values[name, "K"]) for name in names])
-    S = np.array([interpolate(values[name, "S"]) for name in names])
-    return Pigments(names, np.asarray(wavelengths, dtype=np.float64), KS_SCALE * K, KS_SCALE * S)
+    table = rit_pigments().on(wavelengths, kind)
+    K = np.array([table.K[name] for name in table.names])
+    S = np.array([table.S[name] for name in table.names])
+    return Pigments(table.names, table.wavelengths, KS_SCALE * K, KS_SCALE * S)
 
 
 def random_recipes(rng: np.random.Generator, count: int, n_pigments: int, white: int) -> np.ndarray:
@@ -114,18 +95,6 @@ def random_recipes(rng: np.random.Generator, count: int, n_pigments: int, white:
         C[rows[:, None], others[chosen]] = shares
     C[:, white] = 1.0 - colourant_total
     return C
-
-
-def card_black(wavelengths: np.ndarray) -> np.ndarray:
-    """Reflectance of the black half of a drawdown card: about 0.03, slightly higher in the blue and red."""
-    w = np.asarray(wavelengths, dtype=np.float64)
-    return 0.028 + 0.004 * ((w - 580.0) / 200.0) ** 2
-
-
-def card_white(wavelengths: np.ndarray) -> np.ndarray:
-    """Reflectance of the white half of a drawdown card: about 0.85, dropping towards the near UV."""
-    w = np.asarray(wavelengths, dtype=np.float64)
-    return 0.86 - 0.10 * np.exp(-(w - 380.0) / 30.0)
 
 
 def over_backgrounds(K, S, X, backgrounds: Sequence, out: Sequence[np.ndarray] | None = None, chunk: int = 4096):

@@ -33,7 +33,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from instruments.drawdown_card import CardLocation, Region
+from instruments.drawdown_card.layout import Region
+from instruments.drawdown_card.locate import CardLocation
 
 __all__ = [
     "CLASSIC_MINI",

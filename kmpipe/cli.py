@@ -7,8 +7,6 @@ Exit status: 0 success, 1 a check failed, 2 bad input (a one-paragraph message, 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import datetime
 import errno
 import sys
 import traceback
@@ -110,44 +108,17 @@ def _summary_table(materials: list[tuple[Path, object]]) -> Table:
 
 
 def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.formats.material import write_material
-    from kmpipe.formats.sample import load_sample
-    from kmpipe.stages.fit import fit_sample, provenance
+    from kmpipe.stages.fit import fit_manifests
 
-    to_folder = len(args.manifest) > 1 or args.output.is_dir()
-    if to_folder and args.output.exists() and not args.output.is_dir():
-        raise InputError(
-            "is a file; with several manifests, -o must name a folder (one SAMPLE.json is written there per sample)",
-            path=args.output,
-            field="-o",
-        )
-    if to_folder:
-        files.output_folder(args.output)
-    else:
-        files.output_file(args.output, inputs=args.manifest)
-    written = []
-    for manifest in args.manifest:
-        sample = load_sample(manifest, grid=args.grid)
-        # the manifest's sample name is a safe file name; resolved, it must still stay in the folder
-        output = files.within(args.output, f"{sample.name}.json", field="sample.name") if to_folder else args.output
-        if any(path == output for path, _ in written):
-            raise InputError(
-                f"names sample {sample.name!r}, like an earlier manifest; each sample needs its own name "
-                f"(its material is written to {output}); nothing was written for this one",
-                path=manifest,
-                field="sample.name",
-            )
-        files.refuse_inputs(output, [*args.manifest, *sample.inputs])
-        material = fit_sample(
-            sample,
-            method=args.method,
-            saunderson=args.saunderson,
-            smoothness=args.smoothness,
-            noise=args.noise,
-        )
-        material = dataclasses.replace(material, provenance=provenance(sample, output))
-        write_material(material, output)
-        written.append((output, material))
+    written = fit_manifests(
+        args.manifest,
+        args.output,
+        grid=args.grid,
+        method=args.method,
+        saunderson=args.saunderson,
+        smoothness=args.smoothness,
+        noise=args.noise,
+    )
     console.print(_summary_table(written))
     for path, material in written:
         console.print(
@@ -160,124 +131,35 @@ def _cmd_fit(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_ingest(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid, write_spectra_csv
-    from kmpipe.physics.white import ReadingSource, certified_file, certified_reflectance, radiance_to_reflectance
+    from kmpipe.stages.ingest import ingest
 
-    def column_ref(text: str, option: str) -> tuple[Path, str]:
-        file, sep, column = text.rpartition(":")
-        if not sep or not file or not column:
-            raise InputError(f"expected FILE:COLUMN, got {text!r}", field=option)
-        return Path(file), column
-
-    certificate = None if args.certified.startswith("builtin:") else certified_file(args.certified, Path.cwd())[0]
-    inputs = [args.radiance, column_ref(args.white, "--white")[0], certificate]
-    if args.dark:
-        inputs.append(column_ref(args.dark, "--dark")[0])
-    files.output_file(args.output, inputs=inputs)
-    table = read_spectra_csv(args.radiance)
-    if table.quantity != "radiance":
-        raise InputError(
-            f"holds {table.quantity}; kmpipe ingest converts radiance", path=args.radiance, field="quantity"
-        )
-    if table.wavelengths is None:
-        raise InputError("holds camera channels; kmpipe ingest works on spectra", path=args.radiance)
-    grid = uniform_grid(*parse_grid(args.grid)) if args.grid else table.wavelengths
-    if args.grid:
-        table = resample(table, grid)
-
-    def reference(text: str, option: str):
-        path, column = column_ref(text, option)
-        ref_table = read_spectra_csv(path)
-        if ref_table.quantity != "radiance":
-            raise InputError(f"holds {ref_table.quantity}, expected radiance", path=path, field=option)
-        if ref_table.wavelengths is None or not np.array_equal(ref_table.wavelengths, grid):
-            ref_table = resample(ref_table, grid)
-        return ref_table.column(column)
-
-    white = reference(args.white, "--white")
-    dark = reference(args.dark, "--dark") if args.dark else None
-    certified = certified_reflectance(args.certified, grid, base_dir=Path.cwd())
-
-    def source(column: str) -> ReadingSource:  # white, dark and sample may each come from another file
-        return ReadingSource(white=args.white, dark=args.dark, samples=(f"{args.radiance}:{column}",),
-                             labels=tuple(table.sample_labels))  # fmt: skip
-
-    values = np.array(
-        [radiance_to_reflectance(table.column(c), white, certified, dark=dark, source=source(c)) for c in table.columns]
+    table = ingest(
+        args.radiance, args.output, white=args.white, certified=args.certified, dark=args.dark, grid=args.grid
     )
-    metadata = dict(table.metadata)
-    metadata.update(
-        quantity="reflectance",
-        units="1",
-        white_reference=f"{args.white} x {args.certified}",
-    )
-    if args.dark:
-        metadata["dark_reading"] = args.dark
-    out = SpectralTable(wavelengths=grid, channels=None, columns=table.columns, values=values, metadata=metadata)
-    write_spectra_csv(out, args.output)
+    grid = table.wavelengths
     console.print(
         f"wrote {len(table.columns)} reflectance spectra ({grid[0]:g}-{grid[-1]:g} nm) to {args.output}", markup=False
     )
     return EXIT_OK
 
 
-def _material_files(target: Path) -> list[Path]:
-    """MATERIAL.json itself, or every material JSON directly inside a folder."""
-    from kmpipe.formats.material import FORMAT
-
-    if target.is_dir():
-        found = []
-        for path in sorted(target.glob("*.json")):
-            try:
-                head = files.read_head(path, 4096)
-            except InputError:
-                found.append(path)  # not a regular file: reported as broken, the others go on
-                continue
-            if f'"{FORMAT}"'.encode() in head:
-                found.append(path)
-        if not found:
-            raise InputError(f'holds no kmpipe material files (*.json with "format": "{FORMAT}")', path=target)
-        return found
-    files.regular_file(target, "material")
-    return [target]
-
-
 def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.validation.checks import Thresholds, report_to_dict, validate_material
-    from kmpipe.validation.report import write_index, write_sample_report
+    from kmpipe.stages.validate import validate_materials
 
-    materials = _material_files(args.material)
-    if args.manifest is not None and len(materials) > 1:
-        raise InputError("--manifest names one sample's manifest; give one MATERIAL.json with it", field="--manifest")
-    thresholds = Thresholds.from_toml(args.config) if args.config else Thresholds()
-    thresholds = thresholds.updated(
-        delta_e_warn=args.delta_e_warn,
-        delta_e_fail=args.delta_e_fail,
-        rmse_warn=args.rmse_warn,
-        rmse_fail=args.rmse_fail,
+    result = validate_materials(
+        args.material,
+        manifest=args.manifest,
+        illuminants=[name.strip() for name in args.illuminant.split(",") if name.strip()],
+        observer=args.observer,
+        config=args.config,
+        overrides={
+            "delta_e_warn": args.delta_e_warn,
+            "delta_e_fail": args.delta_e_fail,
+            "rmse_warn": args.rmse_warn,
+            "rmse_fail": args.rmse_fail,
+        },
+        output=args.output,
     )
-    illuminants = tuple(name.strip() for name in args.illuminant.split(",") if name.strip())
-    if not illuminants:
-        raise InputError("expected one or more illuminant names, e.g. D65,A", field="--illuminant")
-    base = args.material if args.material.is_dir() else args.material.parent
-    out_dir = files.output_folder(args.output or base / "reports", create=False)
-    entries, broken = [], []
-    for path in materials:
-        try:
-            report = validate_material(
-                path, manifest=args.manifest, illuminants=illuminants, observer=args.observer, thresholds=thresholds
-            )
-        except InputError as err:
-            if len(materials) == 1:
-                raise
-            broken.append((path, err))  # one unreadable material must not stop a product line's batch
-            continue
-        folder = out_dir / report.material.name if len(materials) > 1 or args.output is None else out_dir
-        inputs = [path, report.manifest_path, *(path.parent / i["path"] for i in report.material.provenance.get(
-            "inputs", []))]  # fmt: skip
-        for name in ("report.html", "validation.json"):
-            files.refuse_inputs(folder / name, inputs)
-        entries.append((report, write_sample_report(report, folder)))
 
     table = Table(title="Validation", title_justify="left")
     for column, justify in (
@@ -288,28 +170,29 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
     ):
         table.add_column(column, justify=justify)
     colours = {"pass": "green", "warn": "yellow", "fail": "red"}
-    for report, _ in entries:
-        worst = report.worst_delta_e
+    for entry in result.entries:
+        report, worst = entry.report, entry.report.worst_delta_e
         table.add_row(
             escape(report.material.name),
             f"[{colours[report.verdict]}]{report.verdict}[/]",
             "n/a" if worst is None else f"{worst:.2f}",
             escape(", ".join(report.reasons)) or "none",
         )
-    for path, err in broken:
-        table.add_row(escape(path.name), "[red]error[/]", "", escape(err.message))
+    for broken in result.broken:
+        table.add_row(escape(broken.path.name), "[red]error[/]", "", escape(broken.error.message))
     console.print(table)
-    if len(materials) == 1:
-        console.print(f"report: {entries[0][1]}", highlight=False, markup=False)
-    elif entries:
-        index = write_index([(report_to_dict(report), page) for report, page in entries], out_dir)
-        console.print(f"index of {len(entries)} reports: {index}", highlight=False, markup=False)
-    if broken:
+    if len(result.materials) == 1:
+        console.print(f"report: {result.entries[0].page}", highlight=False, markup=False)
+    elif result.index is not None:
+        console.print(f"index of {len(result.entries)} reports: {result.index}", highlight=False, markup=False)
+    if result.broken:
         errors = Console(stderr=True, emoji=False)
-        for _, err in broken:
-            errors.print(f"[bold red]kmpipe validate: error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
+        for broken in result.broken:
+            errors.print(
+                f"[bold red]kmpipe validate: error:[/] {escape(str(broken.error))}", highlight=False, soft_wrap=True
+            )
         return EXIT_BAD_INPUT
-    return EXIT_CHECK_FAILED if any(report.verdict == "fail" for report, _ in entries) else EXIT_OK
+    return EXIT_CHECK_FAILED if result.failed else EXIT_OK
 
 
 def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
@@ -331,49 +214,66 @@ def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
-    from instruments.cs2000.emulator import ScriptError, run
+    """Serve the emulator of the samples script until Ctrl-C or SIGTERM (exit 0)."""
+    import contextlib
+    import signal
+    import threading
 
+    from kmpipe.formats.emulator_script import emulator_from_script
+
+    if args.socket is not None and not 0 <= args.socket <= 65535:
+        raise InputError(f"a TCP port is 0 (any free port) to 65535, got {args.socket}", field="--socket")
+    overrides: dict[str, object] = {"link": args.link, "socket_port": args.socket}
+    if args.time_scale is not None:
+        overrides["time_scale"] = args.time_scale
+    emulator = emulator_from_script(args.samples, **overrides)
+    on_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler) if on_main_thread else None
     try:
-        run(link=args.link, samples=args.samples, socket_port=args.socket, time_scale=args.time_scale)
-    except ScriptError as err:
-        raise InputError(str(err), field="--samples") from None
+        with emulator:
+            lines = [f"CS-2000 emulator: serial port {emulator.port} (link {emulator.link})"]
+            if emulator.socket_url:
+                lines.append(f"CS-2000 emulator: {emulator.socket_url}")
+            lines.append(
+                f"samples: {', '.join(emulator.sample_names)}; time scale {emulator.time_scale}; Ctrl-C to stop"
+            )
+            for line in lines:
+                console.print(line, highlight=False, markup=False, soft_wrap=True)
+            console.file.flush()
+            with contextlib.suppress(KeyboardInterrupt):
+                while not emulator.wait(0.5):
+                    pass
     except FileExistsError:
         raise InputError(
             "exists and is not an emulator link; choose another path", path=args.link, field="--link"
         ) from None
     except OSError as err:
         raise InputError(f"the emulator cannot listen: {err}", field="--socket" if args.socket else "--link") from None
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return EXIT_OK
 
 
 def _cmd_card(args: argparse.Namespace, console: Console) -> int:
-    from instruments.drawdown_card import (
-        LayoutError,
-        default_layout,
-        layout_to_toml,
-        load_layout,
-        write_card,
-        write_layout,
-    )
+    from instruments.drawdown_card.layout import default_layout
+    from instruments.drawdown_card.printing import write_card
+    from kmpipe.formats.card_layout import card_layout_toml, load_card_layout, write_card_layout
 
     files.output_file(args.output, suffixes=(".png", ".pdf"), inputs=[args.layout])
     if args.layout is not None:
-        try:
-            layout = load_layout(args.layout)
-        except LayoutError as err:
-            raise InputError(str(err), path=args.layout) from None
+        layout = load_card_layout(args.layout)
     else:
         layout = default_layout()
         layout_path = files.output_file(args.output.with_suffix(".layout.toml"), field="-o")
-        text = layout_to_toml(layout)
-        if layout_path.exists() and files.read_text(layout_path, "TOML") != text:
+        if layout_path.exists() and files.read_text(layout_path, "TOML") != card_layout_toml(layout):
             raise InputError(
                 "exists and differs from the built-in layout (edited?); kmpipe does not replace it: draw the card "
                 f"from it with --layout {layout_path}, or remove it to start from the built-in layout",
                 path=layout_path,
                 field="-o",
             )
-        write_layout(layout, layout_path)
+        write_card_layout(layout, layout_path)
         console.print(f"wrote the layout {layout_path} (kmpipe ingest-raw reads it)", highlight=False, markup=False)
     write_card(layout, args.output)
     console.print(f"wrote the card {args.output}: print it at 100 % scale", highlight=False, markup=False)
@@ -383,13 +283,6 @@ def _cmd_card(args: argparse.Namespace, console: Console) -> int:
 def _cmd_ingest_raw(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.stages.ingest_raw import ingest_raw
 
-    files.output_folder(args.output, create=False)
-    if args.name is not None:
-        files.safe_name(args.name, field="--name")
-    for photo in args.photos:  # rawpy would read a FIFO or a device
-        files.regular_file(photo, "RAW photo")
-    for name in ("reflectance.csv", "manifest.toml"):
-        files.refuse_inputs(args.output / name, [*args.photos, args.layout])
     manifest = ingest_raw(
         args.photos,
         args.layout,
@@ -407,60 +300,20 @@ def _labels_arg(text: str) -> list[str]:
     return [label.strip() for label in text.split(",")]
 
 
-def _sheet_labels(frames: list[Path], n_rows: int, n_cols: int) -> tuple[list[str], list[str], str]:
-    """Default row and column labels and header of a sheet.
-
-    Frames that ``kmpipe render`` wrote (EXR with a ``product`` attribute) give "product · shade" per row, the
-    camera's azimuth relative to the product per column, and "scene · illuminant · today's date" across the top;
-    other frames give their file stems and no header.
-    """
-    from renderer.image_io import read_header
-
-    headers = []
-    for path in frames:
-        try:
-            headers.append(read_header(path) if path.suffix.lower() == ".exr" else {})
-        except OSError:
-            headers.append({})  # unreadable: make_sheet names it
-    if not all("product" in h and "camera_azimuth_deg" in h for h in headers):
-        return [frames[r * n_cols].stem for r in range(n_rows)], [p.stem for p in frames[:n_cols]], ""
-
-    def row_label(h: dict) -> str:
-        return h["product"] if h["shade"] in ("", h["product"]) else f"{h['product']} · {h['shade']}"
-
-    rows = [row_label(headers[r * n_cols]) for r in range(n_rows)]
-    columns = [f"{float(h['camera_azimuth_deg']):g}°" for h in headers[:n_cols]]
-    scenes = ", ".join(dict.fromkeys(str(h.get("scene", "")) for h in headers))
-    illuminants = ", ".join(dict.fromkeys(str(h.get("illuminant", "")) for h in headers))
-    return rows, columns, f"{scenes} · {illuminants} · {datetime.date.today().isoformat()}"
-
-
 def _cmd_sheet(args: argparse.Namespace, console: Console) -> int:
-    from renderer.contact_sheet import FrameError, make_sheet, write_sheet
+    from kmpipe.stages.sheet import write_contact_sheet
 
-    frames = args.frames
-    files.output_file(args.output, suffixes=(".png",), inputs=frames)
-    n_cols = args.columns or min(len(frames), 4)
-    n_rows = -(-len(frames) // n_cols)
-    for path in frames:
-        files.regular_file(path, "image")
-    default_rows, default_columns, default_header = _sheet_labels(frames, n_rows, n_cols)
-    columns = args.column_labels or default_columns
-    rows = args.row_labels or default_rows
-    for option, labels, wanted in (("--column-labels", columns, n_cols), ("--row-labels", rows, n_rows)):
-        if len(labels) != wanted:
-            raise InputError(
-                f"gives {len(labels)} labels; {len(frames)} frames in {n_cols} columns need {wanted}", field=option
-            )
-    header = default_header if args.header is None else args.header
-    try:
-        sheet = make_sheet(frames, rows=rows, columns=columns, grid=(n_rows, n_cols), header=header)
-    except FrameError as err:
-        raise InputError(err.reason, path=err.path) from None
-    write_sheet(sheet, args.output)
-    spec = sheet.spec()
+    sheet = write_contact_sheet(
+        args.frames,
+        args.output,
+        columns=args.columns,
+        row_labels=args.row_labels,
+        column_labels=args.column_labels,
+        header=args.header,
+    )
+    (n_rows, n_cols), (width, height) = sheet.grid, sheet.size
     console.print(
-        f"wrote the sheet {args.output} ({n_rows} x {n_cols} frames, {spec.width} x {spec.height} px)",
+        f"wrote the sheet {args.output} ({n_rows} x {n_cols} frames, {width} x {height} px)",
         highlight=False,
         markup=False,
     )
@@ -504,7 +357,8 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_run(args: argparse.Namespace, console: Console) -> int:
-    from kmpipe.run.graph import execute, plan_run
+    from kmpipe.run.execute import execute
+    from kmpipe.run.planning import plan_run
 
     out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
     plan = plan_run(args.recipe, out_dir, only=args.only or (), keep_going=args.keep_going)
@@ -530,7 +384,7 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
         table.add_column(column)
     rendered: dict[str, int] = {}
     for task in plan.tasks.values():
-        if task.id.startswith("render:") and task.state in ("run", "cached"):
+        if task.kind == "render" and task.state in ("run", "cached"):
             rendered[task.product] = rendered.get(task.product, 0) + len(task.args["frames"])
     colours = {"pass": "green", "warn": "yellow", "fail": "red"}
     for product in plan.recipe.info.product:

@@ -1,16 +1,17 @@
 """Image files through OpenImageIO: linear EXR with caller metadata, and 8-bit sRGB PNG.
 
-Files are written to a temporary name in the target directory and renamed, so a reader never sees half a file.
+Files are written to a temporary name in the target directory, fsynced and renamed (:mod:`renderer.atomic_write`),
+so a reader never sees half a file and a crash never leaves one.
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+
+from renderer.atomic_write import write_atomically
 
 #: Header attribute values the EXR writer accepts.
 AttributeValue = str | float | int
@@ -20,9 +21,6 @@ _CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
 MAX_IMAGE_SIDE = 8192
 #: Most channels of an image read.
 MAX_CHANNELS = 16
-#: The process's file creation mask (read once: os.umask can only be read by setting it).
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
 
 
 def _as_image(pixels: np.ndarray) -> np.ndarray:
@@ -33,21 +31,18 @@ def _as_image(pixels: np.ndarray) -> np.ndarray:
 
 
 def _write(path: Path, pixels: np.ndarray, spec: oiio.ImageSpec) -> None:
-    """Write ``pixels`` with ``spec`` to a temporary file beside ``path`` and rename it onto ``path``."""
+    """Write ``pixels`` with ``spec`` to ``path`` atomically (:mod:`renderer.atomic_write`: a temporary file beside
+    it, fsynced, renamed onto it), in the format its suffix names."""
     spec.channelnames = _CHANNELS[spec.nchannels]
-    descriptor, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(descriptor)
-    try:
-        output = oiio.ImageOutput.create(temporary)
+
+    def write(temporary: Path) -> None:
+        output = oiio.ImageOutput.create(path.suffix.lstrip(".").lower())  # by format: the temporary ends in .tmp
         if output is None:
             raise OSError(f"{path}: OpenImageIO has no writer for this file type: {oiio.geterror()}")
-        if not (output.open(temporary, spec) and output.write_image(pixels) and output.close()):
+        if not (output.open(str(temporary), spec) and output.write_image(pixels) and output.close()):
             raise OSError(f"{path}: write failed: {output.geterror()}")
-        os.chmod(temporary, 0o666 & ~_UMASK)  # mkstemp makes the file private; a finished image is not
-        os.replace(temporary, path)
-    finally:
-        if os.path.exists(temporary):
-            os.remove(temporary)
+
+    write_atomically(path, write)
 
 
 def write_exr(

@@ -1,17 +1,15 @@
-"""The Kubelka-Munk layer pass: a mesh shaded by a stack of up to four films over a substrate, with lights and shadows.
+"""The Kubelka-Munk layer pass: the GL pass that renders a :class:`renderer.scene.Scene`, a mesh shaded by a stack of
+up to four films over a substrate (:mod:`renderer.stack`), with lights and shadows.
 
-The renderer knows nothing of K and S: each film comes as an optical table, its reflectance ``R0`` (over a black
-backing) and transmittance ``T`` sampled at a series of thicknesses (mm), per channel. The fragment shader
-(``shaders/km_layers.frag``) looks both up at the film's thickness, interpolating linearly between samples and
-clamping at the ends, and composes the films bottom-up onto the substrate reflectance ``Rg`` with the layer equation
-(thesis eqs. 3.13, 3.14; films are symmetric, so the reflectance from below equals ``R0``)::
+The fragment shader (``shaders/km_layers.frag``) looks each film's optical table up at the film's thickness,
+interpolating linearly between samples and clamping at the ends, and composes the films bottom-up onto the substrate
+reflectance ``Rg`` with the layer equation (thesis eq. 3.14, printed with T2 where R2 belongs; films are symmetric, so
+the reflectance from below equals ``R0``)::
 
     Rg <- R0 + T^2 Rg / (1 - R0 Rg)
 
-Channels are either linear RGB (3) or spectral bands (up to :data:`MAX_CHANNELS`), composed per band and converted
-once with a (bands, 3) ``to_rgb`` matrix (:class:`ChannelStack`); or the caller composes the stack itself and passes
-its linear RGB reflectance (:class:`Precomposed`, kmpipe's ``exact`` mode). Each film may carry a specular lobe
-(:class:`Specular`; Kelemen / Szirmay-Kalos with a Beckmann distribution and Schlick's Fresnel, thesis eq. 3.15),
+per channel: linear RGB, or spectral bands (up to :data:`~renderer.stack.MAX_CHANNELS`) converted once with the
+stack's ``to_rgb`` matrix; a precomposed stack's linear RGB is read as it is. Each lobe (thesis eq. 3.15) is
 attenuated by the films above it. A pixel renders as
 
     sum over lights of  E * visibility * max(cos theta, 0) * (R_rgb + pi * sum_i A_i f_spec,i)
@@ -24,7 +22,6 @@ a bare Lambert surface); ``km_layers.frag`` gives every term. Lights that cast s
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -34,57 +31,11 @@ from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.meshes import GpuMesh
 from renderer.program import Program
-from renderer.scene import Camera, Light, OrthographicCamera, PointLight
+from renderer.scene import MAX_LIGHTS, Camera, Light, OrthographicCamera, PointLight, Scene
 from renderer.shadows import MARGIN, ShadowMap, light_view_projection, shadow_matrix
-
-#: Most films in one stack.
-MAX_LAYERS = 4
-#: Most channels (bands) per table; the shader works on groups of four.
-MAX_CHANNELS = 32
-#: Most lights in one render.
-MAX_LIGHTS = 4
+from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed, Specular
 
 _program: Program | None = None
-
-
-@dataclass(frozen=True)
-class LayerTable:
-    """The optical table of one film: reflectance and transmittance against thickness, per channel.
-
-    Attributes
-    ----------
-    thickness_mm
-        Strictly increasing film thicknesses (mm), shape (n_thickness,), or a scalar for a single thickness.
-    r0
-        Reflectance of the film over a black backing, in [0, 1], shape (n_thickness, C), or (C,) with a scalar
-        ``thickness_mm``.
-    t
-        Transmittance of the film (one pass, diffuse), in [0, 1], same shape as ``r0``.
-    """
-
-    thickness_mm: np.ndarray | float
-    r0: np.ndarray
-    t: np.ndarray
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Validated float64 ``(thickness_mm (n,), r0 (n, C), t (n, C))``; raises :class:`ValueError` on bad input."""
-        x = np.asarray(self.thickness_mm, dtype=float)
-        r0 = np.asarray(self.r0, dtype=float)
-        t = np.asarray(self.t, dtype=float)
-        if x.ndim == 0:
-            x, r0, t = x.reshape(1), r0[np.newaxis], t[np.newaxis]
-        if x.ndim != 1 or x.size < 1:
-            raise ValueError(f"thickness_mm must be a scalar or a non-empty 1-D array, got shape {x.shape}")
-        if r0.ndim != 2 or r0.shape[0] != x.size or t.shape != r0.shape:
-            raise ValueError(
-                f"r0 and t must both have shape (n_thickness, C) = ({x.size}, C), got {r0.shape} and {t.shape}"
-            )
-        if not (np.all(np.isfinite(x)) and np.all(np.diff(x) > 0.0)):
-            raise ValueError("thickness_mm must be finite and strictly increasing")
-        for name, values in (("r0", r0), ("t", t)):
-            if not (np.all(np.isfinite(values)) and values.min() >= 0.0 and values.max() <= 1.0):
-                raise ValueError(f"{name} must lie in [0, 1]")
-        return x, r0, t
 
 
 def _layers_program() -> Program:
@@ -130,101 +81,6 @@ def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> 
     texels[: 2 * groups] = padded.reshape(2, n, groups, 4).transpose(0, 2, 1, 3).reshape(2 * groups, n, 4)
     texels[2 * groups, :, 0] = x
     return texels
-
-
-@dataclass(frozen=True)
-class Specular:
-    """A film's specular lobe: Beckmann roughness ``m`` (RMS microfacet slope, > 0) and index of refraction ``ior``.
-
-    Schlick's Fresnel reflectance at normal incidence is ``F0 = ((ior - 1) / (ior + 1))^2`` (air above the film).
-    """
-
-    roughness: float
-    ior: float = 1.5
-
-    def __post_init__(self) -> None:
-        if not (0.0 < self.roughness <= 2.0 and 1.0 <= self.ior <= 4.0):
-            raise ValueError(
-                f"a specular lobe needs 0 < roughness <= 2 and 1 <= ior <= 4, got {self.roughness}, {self.ior}"
-            )
-
-    @property
-    def f0(self) -> float:
-        return ((self.ior - 1.0) / (self.ior + 1.0)) ** 2
-
-
-@dataclass(frozen=True)
-class ChannelStack:
-    """Films composited in the shader, per channel.
-
-    Attributes
-    ----------
-    tables
-        Optical tables of 0 to :data:`MAX_LAYERS` films, top first (``tables[0]`` is the layer the light meets first,
-        the last lies on the substrate; the order of kmpipe's stacks). All have the same number of channels C (3 for
-        rgb, up to :data:`MAX_CHANNELS` bands). They are composed from the bottom up.
-    thicknesses
-        One per film, in mm: a number (uniform thickness) or a 2-D array (rows, columns) mapped over the mesh's uv,
-        row 0 at v = 1 (the top, as in an image) and column 0 at u = 0, bilinearly filtered between texel centres.
-        Thicknesses outside a table's range take the value at the nearer end.
-    substrate
-        Albedo of the substrate per channel, in [0, 1], shape (C,).
-    to_rgb
-        (C, 3) matrix converting per-channel reflectance to linear RGB (bands); if omitted C must be 3 and the
-        channels are linear RGB.
-    substrate_map
-        A substrate that varies over uv (an albedo texture), overriding ``substrate``: (weights, basis) with
-        weights (rows, columns, 3) over uv (row 0 at v = 1, bilinear) and basis (3, C) reflectances per channel;
-        the substrate at a point is ``clip(weights @ basis, 0, 1)``.
-    """
-
-    tables: Sequence[LayerTable]
-    thicknesses: Sequence[float | np.ndarray]
-    substrate: Sequence[float] | np.ndarray
-    to_rgb: np.ndarray | None = None
-    substrate_map: tuple[np.ndarray, np.ndarray] | None = None
-
-    @property
-    def n_layers(self) -> int:
-        return len(self.tables)
-
-
-@dataclass(frozen=True)
-class Precomposed:
-    """A stack composited by the caller, in linear RGB.
-
-    Attributes
-    ----------
-    reflectance
-        The stack's reflectance over its substrate, linear RGB: shape (3,) (uniform) or (rows, columns, 3) over uv
-        (row 0 at v = 1), bilinearly filtered.
-    over_black
-        The stack's reflectance over a black substrate (what the films reflect by themselves), same shape.
-    attenuation
-        One per film, top first, then one for the substrate: the RGB attenuation ``A`` of a specular lobe by the
-        films above it (1 for the top film; all films for the substrate), shape (n_layers + 1, 3) or
-        (n_layers + 1, rows, columns, 3) on the grid of ``reflectance``.
-    """
-
-    reflectance: np.ndarray
-    over_black: np.ndarray
-    attenuation: np.ndarray
-
-    @property
-    def n_layers(self) -> int:
-        return len(self.attenuation) - 1
-
-
-@dataclass(frozen=True)
-class Prop:
-    """A plain diffuse object beside the product (a floor, a stand): Lambert ``albedo`` (linear RGB in [0, 1]).
-
-    It receives light and shadows and casts shadows; ``model`` is its object -> world matrix (identity if None).
-    """
-
-    mesh: trimesh.Trimesh
-    albedo: tuple[float, float, float]
-    model: np.ndarray | None = None
 
 
 def _check_lights(lights: Sequence[Light]) -> None:
@@ -357,103 +213,54 @@ _SHADOW_UNIT = _COMPOSITE_UNIT + 1
 _SUBSTRATE_UNIT = _SHADOW_UNIT + MAX_LIGHTS
 
 
-def render_layers(
-    mesh: trimesh.Trimesh,
-    camera: Camera,
-    lights: Sequence[Light],
-    stack: ChannelStack | Precomposed,
-    width: int,
-    height: int,
-    *,
-    specular: Sequence[Specular | None] = (),
-    substrate_specular: Specular | None = None,
-    model: np.ndarray | None = None,
-    props: Sequence[Prop] = (),
-    shadow_map_size: int = 1024,
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-) -> np.ndarray:
-    """Render ``mesh`` covered by a Kubelka-Munk stack of films, and any props, into a float image.
+def render_layers(scene: Scene) -> np.ndarray:
+    """Render ``scene``: its mesh covered by its Kubelka-Munk stack of films, and its props, into a float image.
 
-    Parameters
-    ----------
-    mesh
-        Triangle mesh in mm with per-vertex normals and uv (see :mod:`renderer.meshes`).
-    camera
-        Orthographic or perspective camera; its aspect ratio is ``width / height``.
-    lights
-        1 to :data:`MAX_LIGHTS` directional or point lights; those with ``cast_shadows`` get a shadow map of
-        ``shadow_map_size`` texels square covering the mesh and the props.
-    stack
-        The films over the substrate: a :class:`ChannelStack` composited in the shader or a :class:`Precomposed`
-        stack.
-    width, height
-        Image size in pixels.
-    specular
-        Top first, one per film (None: no lobe), or empty for no lobes at all.
-    substrate_specular
-        A lobe of the substrate's own surface (e.g. skin), seen through every film.
-    model
-        Object -> world matrix (4, 4) of ``mesh``; identity if omitted.
-    props
-        Diffuse objects beside the mesh (:class:`Prop`).
-    background
-        Linear RGB of pixels no surface covers (any float, unclamped).
+    Every field of the :class:`~renderer.scene.Scene` is used but ``scattering`` (the skin pass's,
+    :func:`renderer.skin.render_skin`).
 
     Returns
     -------
     np.ndarray
         Linear RGB, float32, shape (height, width, 3), top row first.
     """
-    with context.lock, SurfacePass(
-        mesh, camera, lights, stack, width, height, specular=specular, substrate_specular=substrate_specular,
-        model=model, props=props, shadow_map_size=shadow_map_size,
-    ) as surface_pass, Framebuffer(width, height) as target:  # fmt: skip
-        target.clear((*background, 0.0))
+    with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(*scene.resolution) as target:
+        target.clear((*scene.background, 0.0))
         surface_pass.draw(target, split=False)
         return target.read_rgba()[..., :3]
 
 
 class SurfacePass:
-    """The layer pass's GL resources for one frame: meshes, tables, shadow maps; :meth:`draw` renders into a target.
+    """The layer pass's GL resources for one frame of a scene: meshes, tables, shadow maps; :meth:`draw` renders into
+    a target.
 
-    A context manager (parameters as :func:`render_layers`); the resources are freed on exit.
+    A context manager; the resources are freed on exit. Refuses (ValueError) a scene the pass cannot draw: no light
+    or more than :data:`MAX_LIGHTS`, lobes not one per film, a prop's albedo outside [0, 1], a stack beyond the
+    pass's limits.
     """
 
-    def __init__(
-        self,
-        mesh: trimesh.Trimesh,
-        camera: Camera,
-        lights: Sequence[Light],
-        stack: ChannelStack | Precomposed,
-        width: int,
-        height: int,
-        *,
-        specular: Sequence[Specular | None] = (),
-        substrate_specular: Specular | None = None,
-        model: np.ndarray | None = None,
-        props: Sequence[Prop] = (),
-        shadow_map_size: int = 1024,
-    ) -> None:
-        _check_lights(lights)
-        lobes = list(specular) or [None] * stack.n_layers
+    def __init__(self, scene: Scene) -> None:
+        stack, width, height = scene.stack, *scene.resolution
+        _check_lights(scene.lights)
+        lobes = list(scene.lobes) or [None] * stack.n_layers
         if len(lobes) != stack.n_layers:
             raise ValueError(f"one specular entry per layer is needed: {stack.n_layers} layers, {len(lobes)} entries")
-        self.lobes_bottom_up = [*lobes[::-1], *[None] * (MAX_LAYERS - len(lobes)), substrate_specular]
+        self.lobes_bottom_up = [*lobes[::-1], *[None] * (MAX_LAYERS - len(lobes)), scene.substrate_lobe]
         self.stack = stack
         self.channel = _channel_uniforms(stack) if isinstance(stack, ChannelStack) else None
         self.composite_texels = None if self.channel is not None else _composite_texels(stack)
-        self.model = np.eye(4) if model is None else np.asarray(model, dtype=float)
-        self.props = list(props)
+        self.model = np.eye(4) if scene.model is None else np.asarray(scene.model, dtype=float)
+        self.props = list(scene.props)
         for prop in self.props:
             albedo = np.asarray(prop.albedo, dtype=float)
             if albedo.shape != (3,) or not (np.all(np.isfinite(albedo)) and 0.0 <= albedo.min() <= albedo.max() <= 1.0):
                 raise ValueError(f"a prop's albedo must be linear RGB in [0, 1], got {prop.albedo}")
-        self.draws = [(mesh, self.model)] + [
+        self.draws = [(scene.mesh, self.model)] + [
             (p.mesh, np.eye(4) if p.model is None else np.asarray(p.model, float)) for p in self.props
         ]
-        self.camera, self.lights = camera, list(lights)
-        self.view_projection = camera.projection_matrix(width / height) @ camera.view_matrix()
-        self.shadow_map_size = shadow_map_size
+        self.camera, self.lights = scene.camera, list(scene.lights)
+        self.view_projection = self.camera.projection_matrix(width / height) @ self.camera.view_matrix()
+        self.shadow_map_size = scene.shadow_map_size
         context.make_current(width, height)
         self.program = _layers_program()
         self.textures: list[int] = []

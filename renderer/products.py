@@ -12,6 +12,8 @@ example the powder surface of a compact, so that a material or a cosmetic map ca
 
 from __future__ import annotations
 
+import json
+import urllib.parse
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,8 @@ import trimesh
 
 #: File types :func:`load_mesh` accepts (by extension, lower case).
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
+#: Largest ``.gltf`` JSON whose external files :func:`mesh_files` lists (larger ones list the file alone).
+MAX_GLTF_JSON_BYTES = 64 << 20
 #: Smallest and largest extent (mm, the longest side of the bounding box) of a mesh :func:`load_mesh` accepts.
 MESH_EXTENT_MM = (1e-3, 1e5)
 #: Smallest total triangle area of a loaded mesh, as a fraction of its extent squared (0 for all-degenerate faces).
@@ -242,6 +246,24 @@ def compact_pan(
     return builder.mesh()
 
 
+def mesh_files(path: str | Path) -> list[Path]:
+    """Every file :func:`load_mesh` reads for the mesh file ``path``: the file itself and, for a ``.gltf``, the
+    buffers and images its JSON names by relative URI (embedded ``data:`` URIs are in the file). What a cache of
+    renders must hash; unreadable JSON gives the file alone (loading it then fails, naming it)."""
+    path = Path(path)
+    found = [path]
+    if path.suffix.lower() == ".gltf" and path.is_file() and path.stat().st_size <= MAX_GLTF_JSON_BYTES:
+        try:
+            document = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return found
+        for entry in [*document.get("buffers", []), *document.get("images", [])] if isinstance(document, dict) else []:
+            uri = entry.get("uri") if isinstance(entry, dict) else None
+            if isinstance(uri, str) and uri and not uri.startswith("data:"):
+                found.append(path.parent / urllib.parse.unquote(uri))
+    return found
+
+
 def load_mesh(path: str | Path) -> trimesh.Trimesh:
     """Load a product mesh (mm) from an OBJ, PLY, glTF or GLB file as one :class:`trimesh.Trimesh`.
 
@@ -261,8 +283,9 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         raise ValueError(f"{path}: unsupported mesh file type {path.suffix!r}, expected one of {MESH_SUFFIXES}")
     if not path.is_file():
         raise ValueError(f"{path}: no such mesh file")
-    try:
-        loaded = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
+    try:  # an OBJ's materials (its .mtl and their textures) are not read: only geometry and uv are used
+        options = {"skip_materials": True} if path.suffix.lower() == ".obj" else {}
+        loaded = trimesh.load(str(path), force="mesh", process=False, maintain_order=True, **options)
     except Exception as error:  # trimesh's loaders raise many types for malformed files
         raise ValueError(f"{path}: cannot read a mesh: {error}") from error
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:

@@ -1,4 +1,6 @@
-"""Scene description: cameras and lights as plain data, with no GL.
+"""Scene description as plain data, with no GL: cameras, lights, props, skin scattering, and the :class:`Scene` that
+holds one frame's worth of them for the passes (:func:`renderer.layers.render_layers`,
+:func:`renderer.skin.render_skin`), as pyrender hands its Scene to its renderer.
 
 Positions and lengths are in scene units (mm); directions are world-space vectors (normalised on use). Matrices are
 row-major numpy (4, 4) arrays acting on column vectors, in the OpenGL clip-space convention (NDC z in [-1, 1]).
@@ -6,11 +8,17 @@ row-major numpy (4, 4) arrays acting on column vectors, in the OpenGL clip-space
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
+
+from renderer.stack import ChannelStack, Precomposed, Specular
 
 Vec3 = tuple[float, float, float]
+#: Most lights in one scene (as ``shaders/km_layers.frag`` defines it).
+MAX_LIGHTS = 4
 
 
 def _unit(vector: Vec3 | np.ndarray, what: str) -> np.ndarray:
@@ -138,3 +146,85 @@ class PointLight:
 
 
 Light = DirectionalLight | PointLight
+
+
+@dataclass(frozen=True)
+class Prop:
+    """A plain diffuse object beside the product (a floor, a stand): Lambert ``albedo`` (linear RGB in [0, 1]).
+
+    It receives light and shadows and casts shadows; ``model`` is its object -> world matrix (identity if None).
+    """
+
+    mesh: trimesh.Trimesh
+    albedo: tuple[float, float, float]
+    model: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Scattering:
+    """Parameters of the skin's subsurface blur (:mod:`renderer.skin`): thesis eq. 3.1 and thesis eq. 3.2 with the
+    thesis's correction and clamp.
+
+    ``alpha`` is the global level as a scale of the measured profile (1: its true size on screen; the thesis's 12 to
+    40 are in its own scene units and resolution, which a renderer in mm cannot share); ``beta`` the correction for
+    the depth gradient and ``gradient_clamp`` the largest gradient used (metres of depth per pixel).
+    """
+
+    alpha: float = 1.0
+    beta: float = 800.0
+    gradient_clamp: float = 0.001
+
+    def __post_init__(self) -> None:
+        if not (self.alpha > 0.0 and self.beta >= 0.0 and self.gradient_clamp >= 0.0):
+            raise ValueError(
+                f"scattering needs alpha > 0, beta >= 0 and gradient_clamp >= 0, got {self.alpha}, {self.beta}, "
+                f"{self.gradient_clamp}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    """One frame to render: a mesh wearing a stack of films, its lights, camera and props, and the output size.
+
+    Attributes
+    ----------
+    mesh
+        Triangle mesh in mm with per-vertex normals and uv (see :mod:`renderer.meshes`): the product, or the skin.
+    stack
+        The films over the substrate: a :class:`~renderer.stack.ChannelStack` composed in the shader or a
+        :class:`~renderer.stack.Precomposed` stack.
+    camera
+        Orthographic or perspective camera; its aspect ratio is ``resolution[0] / resolution[1]``.
+    lights
+        1 to :data:`MAX_LIGHTS` directional or point lights; those with ``cast_shadows`` get a shadow
+        map of ``shadow_map_size`` texels square covering the mesh and the props.
+    resolution
+        Image size in pixels, (width, height).
+    lobes
+        The films' specular lobes, top first, one per film (None: no lobe), or empty for no lobes at all.
+    substrate_lobe
+        A lobe of the substrate's own surface, seen through every film (skin's: :data:`renderer.stack.SKIN_SPECULAR`).
+    scattering
+        The skin's subsurface blur (:func:`renderer.skin.render_skin` only; None: no blur).
+    model
+        Object -> world matrix (4, 4) of ``mesh`` (a turntable's turn); identity if None.
+    props
+        Diffuse objects beside the mesh (:class:`Prop`), such as a ground.
+    shadow_map_size
+        Texels per side of each shadow map.
+    background
+        Linear RGB of pixels no surface covers (any float, unclamped).
+    """
+
+    mesh: trimesh.Trimesh
+    stack: ChannelStack | Precomposed
+    camera: Camera
+    lights: Sequence[Light]
+    resolution: tuple[int, int]
+    lobes: Sequence[Specular | None] = ()
+    substrate_lobe: Specular | None = None
+    scattering: Scattering | None = None
+    model: np.ndarray | None = None
+    props: Sequence[Prop] = ()
+    shadow_map_size: int = 1024
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)

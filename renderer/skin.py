@@ -16,36 +16,30 @@ shows bare skin, and an opaque film (T = 0) sends no light to the skin at all. B
 up through the films (instead of between its ways down and up) is the approximation: it differs only where the makeup
 changes within the scattering distance of skin (about a millimetre), at a product's edge.
 
-Subsurface scattering (Jimenez et al. 2009, as in the thesis): the sum of Gaussians of Table 3.1 (variances v_i in
-mm^2, RGB weights W_i) applied as a chain of separable 7-tap blurs (``shaders/sss_blur.frag``), blur i widening the
-previous result by sqrt(v_i - v_(i-1)); each result is alpha-blended into an accumulator with the weights
-W'_i = W_i / sum_(j <= i) W_j (eq. 3.3, :func:`blend_weights`), which leaves sum_i W_i blur_i / sum_j W_j. Only skin
+Subsurface scattering (Jimenez et al. 2009, as in the thesis): the sum of Gaussians of Table 3.1 (variances v_i in mm^2,
+RGB weights W_i) applied as a chain of separable 7-tap blurs (``shaders/sss_blur.frag``), blur i widening the previous
+result by sqrt(v_i - v_(i-1)); each result is alpha-blended (thesis eq. 3.4) into an accumulator with the weights W'_i =
+W_i / sum_(j <= i) W_j (thesis eq. 3.3, :func:`blend_weights`), which leaves sum_i W_i blur_i / sum_j W_j. Only skin
 pixels are blurred and only skin pixels feed a blur.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 
 from renderer import context
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer
-from renderer.layers import ChannelStack, Precomposed, Prop, Specular, SurfacePass
+from renderer.layers import SurfacePass
 from renderer.program import Program
-from renderer.scene import Camera, Light, OrthographicCamera
+from renderer.scene import Camera, OrthographicCamera, Scattering, Scene
 
 #: Variances (mm^2) of the four Gaussians of the skin profile (thesis Table 3.1, Jimenez et al. 2009).
 SKIN_VARIANCES_MM2 = (0.0064, 0.0516, 0.2719, 2.0062)
 #: Their RGB weights W_i (Table 3.1).
 SKIN_WEIGHTS = ((0.2405, 0.4474, 0.6157), (0.1158, 0.3661, 0.3439), (0.1836, 0.1864, 0.0), (0.4600, 0.0, 0.0402))
-#: Skin's Fresnel reflectance at normal incidence (method notes) as an index of refraction: (1 + sqrt F0) / (1 - ...).
-SKIN_IOR = (1.0 + 0.028**0.5) / (1.0 - 0.028**0.5)
-#: Skin's own lobe by default: Beckmann roughness 0.35 (d'Eon and Luebke's fit to measured skin), F0 0.028.
-SKIN_SPECULAR = Specular(0.35, SKIN_IOR)
 
 _blur: Program | None = None
 
@@ -55,27 +49,6 @@ def blend_weights(weights: Sequence[Sequence[float]] = SKIN_WEIGHTS) -> np.ndarr
     w = np.asarray(weights, dtype=float)
     cumulative = np.cumsum(w, axis=0)
     return np.divide(w, cumulative, out=np.zeros_like(w), where=cumulative > 0.0)
-
-
-@dataclass(frozen=True)
-class Scattering:
-    """Parameters of the blur: eqs. 3.1 and 3.2 with the thesis's correction and clamp.
-
-    ``alpha`` is the global level as a scale of the measured profile (1: its true size on screen; the thesis's 12 to
-    40 are in its own scene units and resolution, which a renderer in mm cannot share); ``beta`` the correction for
-    the depth gradient and ``gradient_clamp`` the largest gradient used (metres of depth per pixel).
-    """
-
-    alpha: float = 1.0
-    beta: float = 800.0
-    gradient_clamp: float = 0.001
-
-    def __post_init__(self) -> None:
-        if not (self.alpha > 0.0 and self.beta >= 0.0 and self.gradient_clamp >= 0.0):
-            raise ValueError(
-                f"scattering needs alpha > 0, beta >= 0 and gradient_clamp >= 0, got {self.alpha}, {self.beta}, "
-                f"{self.gradient_clamp}"
-            )
 
 
 def _blur_program() -> Program:
@@ -143,37 +116,21 @@ def scatter(skin: Framebuffer, camera: Camera, scattering: Scattering) -> np.nda
         GL.glDeleteVertexArrays(1, [vao])
 
 
-def render_skin(
-    mesh: trimesh.Trimesh,
-    camera: Camera,
-    lights: Sequence[Light],
-    stack: ChannelStack | Precomposed,
-    width: int,
-    height: int,
-    *,
-    scattering: Scattering | None = Scattering(),
-    specular: Sequence[Specular | None] = (),
-    skin_specular: Specular | None = SKIN_SPECULAR,
-    model: np.ndarray | None = None,
-    props: Sequence[Prop] = (),
-    shadow_map_size: int = 1024,
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-) -> np.ndarray:
+def render_skin(scene: Scene) -> np.ndarray:
     """Render a skin mesh wearing a makeup stack (its substrate is the skin's albedo) into linear RGB (h, w, 3).
 
-    Parameters as :func:`renderer.layers.render_layers`, with ``skin_specular`` the skin's own lobe (default:
-    :data:`SKIN_SPECULAR`) and ``scattering`` the subsurface blur (None: no blur, the result equals
-    the layer pass's).
+    The scene as :func:`renderer.layers.render_layers` takes it, with ``substrate_lobe`` the skin's own lobe
+    (:data:`renderer.stack.SKIN_SPECULAR` for measured skin) and ``scattering`` the subsurface blur (None: no blur,
+    the result equals the layer pass's to rounding).
     """
-    with context.lock, SurfacePass(
-        mesh, camera, lights, stack, width, height, specular=specular, substrate_specular=skin_specular,
-        model=model, props=props, shadow_map_size=shadow_map_size,
-    ) as surface_pass, Framebuffer(width, height, targets=3) as target:  # fmt: skip
+    width, height = scene.resolution
+    with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(width, height, targets=3) as target:
         target.bind()
-        for index, value in enumerate(((*background, 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
+        for index, value in enumerate(((*scene.background, 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
             GL.glClearBufferfv(GL.GL_COLOR, index, np.asarray(value, dtype=np.float32))
         GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
         surface_pass.draw(target, split=True)
         surface = target.read_rgba(0)[..., :3]
-        light = target.read_rgba(1)[..., :3] if scattering is None else scatter(target, camera, scattering)
-        return surface + light
+        if scene.scattering is None:
+            return surface + target.read_rgba(1)[..., :3]
+        return surface + scatter(target, scene.camera, scene.scattering)

@@ -3,12 +3,13 @@
 Used to show that a restructuring changed no result: run ``./scripts/demo``, copy ``out/demo`` aside, change the
 code, run the demo again, then::
 
-    .venv/bin/python scripts/same_results.py BEFORE_DIR out/demo
+    .venv/bin/python scripts/same_results.py BEFORE_DIR out/demo [--new plan.json]
 
 Materials (``*.json`` with K and S) are compared on every field but their provenance (dates, versions, paths);
 validation files (``validation.json``, ``summary.json``) on every field; images (``*.exr``, ``*.png``) pixel for
-pixel through OpenImageIO, never by checksum (metadata such as a date may differ, the pixels may not). Exit status 0
-when everything is equal, 1 when anything differs or is missing on one side (each difference is listed).
+pixel through OpenImageIO, never by checksum (metadata such as a date may differ, the pixels may not). ``--new NAME``
+names an output that the change adds (files of that name may exist only after; they are listed, not compared). Exit
+status 0 when everything is equal, 1 when anything differs or is missing on one side (each difference is listed).
 """
 
 from __future__ import annotations
@@ -53,8 +54,9 @@ def _json_difference(before: object, after: object, where: str) -> str | None:
     return None if before == after else f"{where}: {before!r} vs {after!r}"
 
 
-def compare(before_dir: Path, after_dir: Path) -> tuple[dict[str, int], list[str]]:
-    """Compare every result file of two output folders: (files compared per kind, differences found)."""
+def compare(before_dir: Path, after_dir: Path, new: frozenset[str] = frozenset()) -> tuple[dict[str, int], list[str]]:
+    """Compare every result file of two output folders: (files compared per kind, differences found); files named
+    in ``new`` may exist only after."""
     counts = {"materials": 0, "validation files": 0, "images": 0}
     problems: list[str] = []
 
@@ -67,7 +69,7 @@ def compare(before_dir: Path, after_dir: Path) -> tuple[dict[str, int], list[str
 
     before, after = results(before_dir), results(after_dir)
     problems += [f"{p}: only in {before_dir}" for p in sorted(before - after)]
-    problems += [f"{p}: only in {after_dir}" for p in sorted(after - before)]
+    problems += [f"{p}: only in {after_dir}" for p in sorted(after - before) if p.name not in new]
     for relative in sorted(before & after):
         b, a = before_dir / relative, after_dir / relative
         if relative.suffix == ".json":
@@ -99,8 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("before", type=Path)
     parser.add_argument("after", type=Path)
+    parser.add_argument("--new", action="append", default=[], metavar="NAME", help="an output the change adds")
     args = parser.parse_args(argv)
-    counts, problems = compare(args.before, args.after)
+    counts, problems = compare(args.before, args.after, frozenset(args.new))
     print(", ".join(f"{n} {kind}" for kind, n in counts.items()) + " compared")
     for problem in problems:
         print("DIFFERENT", problem)

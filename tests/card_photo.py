@@ -15,7 +15,8 @@ import cv2
 import numpy as np
 from dng_fixtures import mosaic, write_dng
 
-from instruments.drawdown_card import Layout, render_card
+from instruments.drawdown_card.layout import Layout
+from instruments.drawdown_card.printing import render_card
 from kmpipe.formats.manifest import parse_thickness_mm
 from kmpipe.physics.colorimetry import reflectance_to_XYZ
 from kmpipe.physics.kubelka_munk import reflectance_over_background

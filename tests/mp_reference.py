@@ -2,11 +2,12 @@
 
 Everything here is written from the textbook formulas, evaluated elementwise with mpmath at
 ``DPS`` significant digits on the exact binary value of each float64 input. Nothing here imports
-``kmpipe``. Notation (Kubelka 1948; thesis eqs. 3.13, 3.14, 4.1, 4.4, 4.5):
+``kmpipe``. Notation (Kubelka 1948; the thesis's equations are tagged ``thesis eq. N.M``, see docs/equations.md):
 
     a = 1 + K/S,  b = sqrt(a^2 - 1),  x = b S X
-    R0 = sinh x / (a sinh x + b cosh x),  T = b / (a sinh x + b cosh x)
-    R over Rg = R0 + T^2 Rg / (1 - R0 Rg),  R_inf = a - b,  K/S = (1 - R)^2 / (2 R)
+    R0 = sinh x / (a sinh x + b cosh x) (thesis eq. 3.8),  T = b / (a sinh x + b cosh x) (thesis eq. 3.9)
+    R over Rg = R0 + T^2 Rg / (1 - R0 Rg) (thesis eq. 3.14),  R_inf = a - b (thesis eq. 3.6),
+    K/S = (1 - R)^2 / (2 R) (thesis eq. 3.7)
 
 Limits that the textbook form cannot evaluate (0/0) use their closed forms:
 X = 0 -> (0, 1); S = 0 -> (0, exp(-K X)); K = 0 -> (SX / (1 + SX), 1 / (1 + SX)).
@@ -34,7 +35,7 @@ def m(x: float) -> mpmath.mpf:
 # scalar references (mp numbers in, mp numbers out)
 # ---------------------------------------------------------------------------------------------
 def film(K, S, X):
-    """(R0, T) of a KM film over an ideal black background: textbook sinh/cosh form."""
+    """(R0, T) of a KM film over an ideal black background: textbook sinh/cosh form (thesis eq. 3.8, thesis eq. 3.9)."""
     K, S, X = mpf(K), mpf(S), mpf(X)
     if X == 0:
         return mpf(0), mpf(1)
@@ -52,7 +53,8 @@ def film(K, S, X):
 
 
 def over_background(R0, T, Rg):
-    """Film (R0, T) over a background of reflectance Rg (eq. 3.13 with a semi-infinite bottom layer)."""
+    """Film (R0, T) over a background of reflectance Rg (thesis eq. 3.14 with the background as layer 2; the thesis
+    prints T2 where R2, here Rg, belongs)."""
     R0, T, Rg = mpf(R0), mpf(T), mpf(Rg)
     if T == 0:  # nothing gets through (also covers R0 = Rg = 1, a perfect mirror on a perfect mirror)
         return R0
@@ -64,8 +66,17 @@ def reflectance(K, S, X, Rg):
     return over_background(R0, T, Rg)
 
 
+def reflectance_coth(K, S, X, Rg):
+    """Thesis eq. 3.5 as printed: R = (1 - Rg (a - b coth(bSX))) / (a - Rg + b coth(bSX)); K, S, X > 0."""
+    K, S, X, Rg = mpf(K), mpf(S), mpf(X), mpf(Rg)
+    a = 1 + K / S
+    b = _ctx.sqrt(K * (K + 2 * S)) / S
+    y = b * _ctx.coth(b * S * X)
+    return (1 - Rg * (a - y)) / (a - Rg + y)
+
+
 def r_inf(K, S):
-    """R_inf = a - b = 1 + K/S - sqrt((K/S)^2 + 2 K/S); 0 for S = 0.
+    """R_inf = a - b = 1 + K/S - sqrt((K/S)^2 + 2 K/S) (thesis eq. 3.6 as printed); 0 for S = 0.
 
     Evaluated literally, with the working precision raised by the digits that a - b cancels.
     """
@@ -81,7 +92,7 @@ def r_inf(K, S):
 
 
 def ks_from_r(R):
-    """K/S from the reflectance of an opaque layer (KM convention, factor 2)."""
+    """K/S from the reflectance of an opaque layer (KM convention, factor 2; thesis eq. 3.7)."""
     R = mpf(R)
     return (1 - R) ** 2 / (2 * R)
 
@@ -97,7 +108,7 @@ def saunderson_inverse(Rm, k1, k2):
 
 
 def stack_bottom_up(R0s, Ts, Rg):
-    """Reflectance of layers (index 0 = top) over a substrate Rg, composed bottom-up with eq. 3.13."""
+    """Reflectance of layers (index 0 = top) over a substrate Rg, composed bottom-up with thesis eq. 3.14."""
     R = mpf(Rg)
     for R0, T in zip(reversed(list(R0s)), reversed(list(Ts)), strict=True):
         R0, T = mpf(R0), mpf(T)
@@ -109,7 +120,9 @@ def stack_two_sided(R0s, Ts):
     """(R_top, T_total, R_bottom) of symmetric layers (index 0 = top), adding them top-down.
 
     Each KM film reflects the same from both sides; the partial stack does not, so its underside
-    reflectance is carried along (adding method, eqs. 3.13 and 3.14 in their two-sided form).
+    reflectance is carried along (adding method): the top reflectance by thesis eq. 3.12 (the partial stack is layer
+    1, its underside the thesis's R_I), the transmittance by thesis eq. 3.10 with R_I for R_1, the underside by
+    thesis eq. 3.14 seen from below (R2 for the printed T2 throughout).
     """
     R0s, Ts = [mpf(v) for v in R0s], [mpf(v) for v in Ts]
     Rt, Tt, Rb = R0s[0], Ts[0], R0s[0]
@@ -128,7 +141,8 @@ def contrast_ratio(K, S, X, R_black, R_white):
 def black_white_inverse(Rob, Row, Rb, Rw, X):
     """(K, S) of a film of thickness X from its reflectances over two backgrounds Rb and Rw.
 
-    Each reading satisfies (R + Rg) a + (R - Rg) y = 1 + R Rg with y = b coth(b S X); written for
+    Each reading satisfies (R + Rg) a + (R - Rg) y = 1 + R Rg with y = b coth(b S X) (thesis eq. 3.5 multiplied
+    out); written for
     (a - 1, y) the right-hand side is (1 - R)(1 - Rg). Solved by Cramer's rule at 50 digits.
     Returns None where the readings admit no film (a < 1 or y <= b).
     """
@@ -151,7 +165,8 @@ def black_white_inverse(Rob, Row, Rb, Rw, X):
 
 
 def two_constant_inverse(Rinf, R, Rg, X):
-    """(K, S) from masstone R_inf and a film of thickness X over Rg read as R (eq. 4.1, real form).
+    """(K, S) from masstone R_inf and a film of thickness X over Rg read as R (thesis eq. 4.1 in the method notes'
+    real form, thesis eq. 4.2).
 
     S X = ln[(1/Ri - R)(Ri - Rg) / ((Ri - R)(1/Ri - Rg))] / (1/Ri - Ri), K = S (a - 1),
     a - 1 = (1 - Ri)^2 / (2 Ri). Returns None where the logarithm's argument is not positive.
@@ -167,8 +182,26 @@ def two_constant_inverse(Rinf, R, Rg, X):
     return S * ks_from_r(Ri), S
 
 
+def two_constant_arcoth(Rinf, R, Rg, X):
+    """Thesis eq. 4.1 and thesis eq. 4.2 as printed: a = (1/R_inf + R_inf) / 2, b = sqrt(a^2 - 1),
+    S = [arcoth((a - R)/b) - arcoth((a - Rg)/b)] / (b X), K = S (a - 1).
+
+    Returns None where an arcoth argument is not above 1: the printed form is complex there (a film over a light
+    background brighter than its masstone).
+    """
+    Ri, R, Rg, X = (mpf(v) for v in (Rinf, R, Rg, X))
+    a = (1 / Ri + Ri) / 2
+    b = _ctx.sqrt(a * a - 1)
+    u, v = (a - R) / b, (a - Rg) / b
+    if not (u > 1 and v > 1):
+        return None
+    S = (_ctx.acoth(u) - _ctx.acoth(v)) / (b * X)
+    return S * (a - 1), S
+
+
 def curtis_arcoth(Rob, Row, X=1.0):
-    """Curtis et al. 1997 (thesis eq. 4.5 with arcoth, as the method notes correct it), literal form."""
+    """Curtis et al. 1997 (thesis eq. 4.5 with arcoth, as the method notes correct it, and thesis eq. 4.6), literal
+    form."""
     RB, RW, X = mpf(Rob), mpf(Row), mpf(X)
     a = (RW + (RB - RW + 1) / RB) / 2
     b = _ctx.sqrt(a * a - 1)

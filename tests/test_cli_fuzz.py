@@ -304,17 +304,18 @@ def test_the_small_recipe_runs(material, tmp_path):
     status, _, err = run_cli(["run", tmp_path / "recipe.toml", "-o", tmp_path / "out"])
     assert status == 0, err
     assert sorted(p.name for p in (tmp_path / "out" / "frames" / "f1").iterdir()) == [
-        "frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png"]  # fmt: skip
+        "frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png", "plan.json"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def raw_card(tmp_path_factory):
-    from instruments.drawdown_card import default_layout, write_layout
+    from instruments.drawdown_card.layout import default_layout
+    from kmpipe.formats.card_layout import write_card_layout
     from tests.card_photo import Scene, photograph
 
     folder = tmp_path_factory.mktemp("raw")
     layout = default_layout()
-    write_layout(layout, folder / "layout.toml")
+    write_card_layout(layout, folder / "layout.toml")
     scene = Scene(backings={"black": np.array([0.04, 0.035, 0.03]), "white": np.array([0.86, 0.84, 0.8])},
                   K=np.array([8.0, 15.0, 30.0]), S=np.array([60.0, 55.0, 50.0]))  # fmt: skip
     photograph(layout, replace(scene, angle_deg=5.0), folder / "photo.dng", seed=0)
@@ -370,9 +371,10 @@ def _all_inputs(work: Path, material: Path) -> None:
     shutil.copy(material / "F1.json", work / "F1.json")
     shutil.copy(ROOT / "recipes" / "demo" / "sessions" / "F1.jsonl", work / "F1.jsonl")
     shutil.copy(GOLDEN / "compact_000.exr", work / "compact_000.exr")
-    from instruments.drawdown_card import default_layout, write_layout
+    from instruments.drawdown_card.layout import default_layout
+    from kmpipe.formats.card_layout import write_card_layout
 
-    write_layout(default_layout(), work / "L.png")  # a layout under a name a card could have
+    write_card_layout(default_layout(), work / "L.png")  # a layout under a name a card could have
     small_scene(work, material)
     small_recipe(work, material)
 
@@ -529,9 +531,10 @@ def test_render_never_writes_over_a_file_its_scene_reads(material, tmp_path):
 @FUZZ
 @given(target=st.sampled_from(["emulator.toml", "emulator_reflectance.csv"]), breakage=breakages)
 def test_emulate_on_broken_scripts(target, breakage):
-    """A broken samples script or reflectance file: the emulator's loader says so (ScriptError), and ``kmpipe
+    """A broken samples script or reflectance file: the emulator's loader says so (InputError), and ``kmpipe
     emulate`` exits 2 naming the file before it listens; a script still valid loads (it would serve forever)."""
-    from instruments.cs2000.emulator import Emulator, ScriptError
+    from kmpipe.errors import InputError
+    from kmpipe.formats.emulator_script import emulator_from_script
 
     def setup(work: Path) -> None:
         for name in ("emulator.toml", "emulator_reflectance.csv"):
@@ -540,8 +543,8 @@ def test_emulate_on_broken_scripts(target, breakage):
     with workspace(setup) as work:
         breakage.apply(work / target)
         try:
-            Emulator.from_script(work / "emulator.toml")
-        except ScriptError:
+            emulator_from_script(work / "emulator.toml")
+        except InputError:
             argv = ["emulate", "--samples", work / "emulator.toml", "--link", work / "out" / "cs2000"]
             status, _ = assert_well_behaved(argv, work, work / "out", work / target)
             assert status == 2

@@ -31,7 +31,10 @@ from instruments.colorchecker import (
     neutral_row_descends,
     sample_colorchecker_in_slot,
 )
-from instruments.drawdown_card import Region, default_layout, locate_card, paper_illumination, sample_region
+from instruments.drawdown_card.flat_field import paper_illumination
+from instruments.drawdown_card.layout import Region, default_layout
+from instruments.drawdown_card.locate import locate_card
+from instruments.drawdown_card.sampling import sample_region
 from instruments.raw_photo import read_raw, tone_mapped_8bit
 from kmpipe.physics.colour_correction import fit_camera_to_XYZ, reference_XYZ
 

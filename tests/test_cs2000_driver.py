@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from instruments.cs2000.driver import CS2000, InstrumentTimeout
-from instruments.cs2000.emulator import Emulator, Fault
+from instruments.cs2000.emulator.faults import Fault
+from instruments.cs2000.emulator.server import Emulator
 from instruments.cs2000.protocol import (
     COLORIMETRIC_NAMES,
     SPECTRAL_BLOCKS,

@@ -1,6 +1,6 @@
 """Tests of the CS-2000 emulator (instruments.cs2000.emulator), through pyserial on its pseudo-terminal and its
 TCP socket: replies per the protocol summary, the two-phase MEAS, MEDR against the ground truth, data clearing,
-and every injectable fault as seen on the wire."""
+and every injectable fault as seen on the wire; and of its samples scripts (kmpipe.formats.emulator_script)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 import serial
 
-from instruments.cs2000.emulator import Emulator, Fault, ScriptError, colorimetry, illuminant_spd, load_script, main
+from instruments.cs2000.emulator.faults import Fault
+from instruments.cs2000.emulator.radiometry import colorimetry, illuminant_spd
+from instruments.cs2000.emulator.server import Emulator
 from instruments.cs2000.protocol import (
     COLORIMETRIC_BLOCKS,
     COLORIMETRIC_NAMES,
@@ -34,6 +36,9 @@ from instruments.cs2000.protocol import (
     parse_reply,
     parse_spectral_block,
 )
+from kmpipe import cli
+from kmpipe.errors import InputError
+from kmpipe.formats.emulator_script import emulator_from_script, load_emulator_script
 
 SCALE = 0.01  # emulated instrument times x 0.01: a 3 s measurement takes 30 ms
 REFLECTANCE = {"white": 0.98, "black": 0.03, "dark": 5e-5, "ramp": np.linspace(0.05, 0.9, 401)}
@@ -307,7 +312,7 @@ def test_sequence_seeded_noise_and_script(tmp_path):
     )
     runs = []
     for _ in range(2):
-        with Emulator.from_script(script) as emu:
+        with emulator_from_script(script) as emu:
             host = Host(emu.port)
             host.remote()
             assert host.ask("IDDR") == b"OK00,CS-2000A ,2,7654321\r\n"
@@ -376,22 +381,56 @@ def test_a_colorimetry_fault_replaces_the_values_sent():
 def test_bad_scripts_are_refused_with_the_file_named(tmp_path):
     script = tmp_path / "samples.toml"
     script.write_text('[samples]\nfile = "missing.csv"\n')
-    with pytest.raises(ScriptError, match=r"missing\.csv: cannot read"):
-        load_script(script)
+    with pytest.raises(InputError, match=r"line 2: field 'samples\.file': names the file 'missing\.csv', which does"):
+        load_emulator_script(script)
     (tmp_path / "r.csv").write_text("wavelength_nm,a\n400,0.5\n700,0.5\n")
     script.write_text('[samples]\nfile = "r.csv"\n')
-    with pytest.raises(ScriptError, match="cover 380-780 nm"):
-        load_script(script)
+    with pytest.raises(InputError, match=r"r\.csv: field 'wavelength_nm': .*cover 380-780 nm.*samples\.toml, line 2"):
+        load_emulator_script(script)
     (tmp_path / "r.csv").write_text("wavelength_nm,a\n380,0.5\n780,0.5\n")
     script.write_text('[samples]\nfile = "r.csv"\nsequence = ["b"]\n')
-    with pytest.raises(ScriptError, match="unknown sample"):
-        Emulator.from_script(script)
+    with pytest.raises(InputError, match=r"line 3: field 'samples\.sequence': names unknown sample"):
+        emulator_from_script(script)
     script.write_text('[samples]\nfile = "r.csv"\n[faults.slow]\nkind = "delay"\ncommand = "IDDR"\nseconds = 2\n')
-    assert load_script(script)["faults"] == [Fault("delay", "IDDR", seconds=2)]
+    assert load_emulator_script(script)["faults"] == [Fault("delay", "IDDR", seconds=2)]
+    script.write_text('[samples]\nfile = "r.csv"\n[faults.slow]\nkind = "delay"\nseconds = -1\n')
+    with pytest.raises(InputError, match=r"line 5: field 'faults\.slow\.seconds'"):
+        load_emulator_script(script)
     script.write_text('[samples]\nfile = "r.csv"\n[[faults]]\nkind = "explode"\n')
-    with pytest.raises(ScriptError, match="fault 1: fault kind 'explode'"):
-        load_script(script)
-    assert main(["--samples", str(tmp_path / "nothing.toml")]) == 2
+    with pytest.raises(InputError, match=r"line 4: field 'faults\[1\]\.kind': Input should be 'delay'"):
+        load_emulator_script(script)
+    script.write_text('[samples]\nfile = "r.csv"\n[[faults]]\nkind = "colorimetry"\ncommand = "MEAS"\n')
+    with pytest.raises(InputError, match=r"line 3: field 'faults\[1\]': a colorimetry fault applies to MEDR"):
+        load_emulator_script(script)
+    script.write_text('[samples]\nfile = "r.csv"\ngain = "0.01"\n')  # values as written: no text for a number
+    with pytest.raises(InputError, match=r"line 3: field 'samples\.gain'"):
+        load_emulator_script(script)
+    assert cli.main(["emulate", "--samples", str(tmp_path / "nothing.toml"), "--link", str(tmp_path / "l")]) == 2
+
+
+@pytest.mark.parametrize(
+    ("name", "key"), [("D55", "D55"), ("d65", "D65"), ("F11", "FL11"), ("FL2", "FL2"), ("LED-B3", "LED-B3")]
+)
+def test_a_script_takes_the_illuminant_names_scenes_and_recipes_take(tmp_path, name, key):
+    """The one resolver of illuminant names (kmpipe.physics.colorimetry.illuminant_key): F11 is FL11, case does
+    not matter; the emulator's radiance is that illuminant's colour-science table."""
+    (tmp_path / "r.csv").write_text("wavelength_nm,a\n380,0.5\n780,0.5\n")
+    (tmp_path / "s.toml").write_text(f'[samples]\nfile = "r.csv"\nilluminant = "{name}"\n')
+    assert load_emulator_script(tmp_path / "s.toml")["illuminant"] == key
+    import colour
+
+    table = colour.SDS_ILLUMINANTS[key]
+    relative = np.interp(np.arange(380, 781), table.wavelengths, table.values)
+    np.testing.assert_allclose(illuminant_spd(key), relative * 100 / relative[180], rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["F99", "FL", "sunlight", "ISO 7589 Photoflood"])
+def test_a_script_refuses_an_unknown_illuminant_naming_the_field(tmp_path, name):
+    (tmp_path / "r.csv").write_text("wavelength_nm,a\n380,0.5\n780,0.5\n")
+    (tmp_path / "s.toml").write_text(f'[samples]\nfile = "r.csv"\nilluminant = "{name}"\n')
+    with pytest.raises(InputError) as err:
+        load_emulator_script(tmp_path / "s.toml")
+    assert (err.value.path, err.value.line, err.value.field) == (tmp_path / "s.toml", 3, "samples.illuminant")
 
 
 # ------------------------------------------------------------------------------------------------------ faults
@@ -612,13 +651,17 @@ def test_symlink_lifecycle(tmp_path):
 
 
 def test_command_line_runs_until_interrupted(tmp_path):
+    """``kmpipe emulate``, the emulator's one command line, serves until Ctrl-C and exits 0, removing its link."""
     link = tmp_path / "cs2000"
+    root = Path(__file__).resolve().parents[1]
+    script = root / "recipes" / "samples" / "F1" / "emulator.toml"
     process = subprocess.Popen(
-        [sys.executable, "-m", "instruments.cs2000.emulator", "--link", str(link), "--time-scale", "0.01"],
+        [sys.executable, "-m", "kmpipe", "emulate", "--samples", str(script), "--link", str(link), "--time-scale",
+         "0.01"],
         stdout=subprocess.PIPE,
         text=True,
-        cwd=Path(__file__).resolve().parents[1],
-    )
+        cwd=root,
+    )  # fmt: skip
     try:
         assert f"(link {link})" in process.stdout.readline()
         host = Host(str(link))

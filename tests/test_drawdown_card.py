@@ -6,27 +6,18 @@ import struct
 
 import cv2
 import numpy as np
+import OpenImageIO as oiio
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from instruments.drawdown_card import (
-    CardLocation,
-    CardNotFound,
-    Layout,
-    LayoutError,
-    Marker,
-    Region,
-    default_layout,
-    layout_to_toml,
-    load_layout,
-    locate_card,
-    render_card,
-    sample_pixels,
-    sample_region,
-    write_card,
-    write_layout,
-)
+from instruments.drawdown_card.layout import Layout, LayoutError, Marker, Region, default_layout
+from instruments.drawdown_card.locate import CardLocation, CardNotFound, locate_card
+from instruments.drawdown_card.printing import render_card, write_card
+from instruments.drawdown_card.sampling import sample_pixels, sample_region
+from kmpipe import cli
+from kmpipe.errors import InputError
+from kmpipe.formats.card_layout import load_card_layout, write_card_layout
 
 PPM = 6.0  # px per mm of the cards rendered here
 CANVAS = 1700  # side (px) of the simulated photo: holds the card at any rotation at scales up to 1
@@ -103,8 +94,8 @@ def test_default_layout_is_an_a5_card_with_the_documented_regions():
 
 def test_layout_round_trips_through_toml(tmp_path):
     path = tmp_path / "card.toml"
-    write_layout(LAYOUT, path)
-    assert load_layout(path) == LAYOUT
+    write_card_layout(LAYOUT, path)
+    assert load_card_layout(path) == LAYOUT
     assert [p.name for p in tmp_path.iterdir()] == ["card.toml"]  # no temporary file left behind
 
 
@@ -127,10 +118,32 @@ def test_region_metadata_passes_through_toml_untouched(tmp_path_factory, metadat
     markers = (Marker(0, 5, 5, 18), Marker(1, 177, 5, 18), Marker(2, 5, 117, 18))
     layout = Layout(200.0, 140.0, "DICT_5X5_100", markers, (region,))
     path = tmp_path_factory.mktemp("metadata") / "card.toml"
-    write_layout(layout, path)
-    loaded = load_layout(path)
+    write_card_layout(layout, path)
+    loaded = load_card_layout(path)
     assert loaded == layout
     assert dict(loaded.regions[0].metadata) == metadata
+
+
+def test_a_layout_as_people_write_it_reads(tmp_path):
+    """The documented form, arrays of tables written out ([[marker]]), reads as the layout it describes."""
+    path = tmp_path / "card.toml"
+    path.write_text(HAND_WRITTEN, encoding="utf-8")
+    assert load_card_layout(path) == LAYOUT
+
+
+def _toml_value(value):
+    return repr(value).lower() if isinstance(value, bool) else f'"{value}"' if isinstance(value, str) else repr(value)
+
+
+def _hand_written(layout):
+    """The layout in the form docs/formats.md shows, one key per line and [[...]] for every entry."""
+    blocks = [f"[card]\nwidth_mm = {layout.width_mm!r}\nheight_mm = {layout.height_mm!r}\n"
+              f'dictionary = "{layout.dictionary}"\n']  # fmt: skip
+    for table, entries in (("marker", layout.markers), ("printed", layout.printed), ("region", layout.regions)):
+        for entry in entries:
+            values = {k: v for k, v in vars(entry).items() if k != "metadata"} | dict(getattr(entry, "metadata", {}))
+            blocks.append(f"[[{table}]]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in values.items()))
+    return "\n".join(blocks)
 
 
 def edit(text, old, new):
@@ -143,58 +156,78 @@ def drop_markers(text, *ids):
     return "\n\n".join(b for b in blocks if not any(b.startswith(f"[[marker]]\nid = {i}\n") for i in ids))
 
 
-TOML = layout_to_toml(LAYOUT)
+HAND_WRITTEN = _hand_written(LAYOUT)
+#: A broken layout -> the field named (entries counted from 1) and the line's text, or None where there is no line
 BAD_LAYOUTS = {
     "unknown card key": (
-        edit(TOML, 'dictionary = "DICT_4X4_50"', 'dictionary = "DICT_4X4_50"\ncolour = "red"'),
+        edit(HAND_WRITTEN, 'dictionary = "DICT_4X4_50"', 'dictionary = "DICT_4X4_50"\ncolour = "red"'),
         "card.colour",
+        'colour = "red"',
     ),
-    "unknown marker key": (edit(TOML, "size_mm = 16.0", "size_mm = 16.0\nrotation = 90"), "marker[0].rotation"),
-    "unknown printed key": (edit(TOML, "gray = 0.0", "gray = 0.0\nink = 'K'"), "printed[0].ink"),
-    "unknown table": (TOML + "\n[extra]\na = 1\n", "'extra'"),
-    "unknown dictionary": (edit(TOML, "DICT_4X4_50", "DICT_4X4_51"), "card.dictionary"),
-    "too few markers": (drop_markers(TOML, 2, 3), "marker: at least 3 markers"),
-    "duplicate id": (edit(TOML, "id = 3", "id = 0"), "marker[3].id"),
-    "id outside the dictionary": (edit(TOML, "id = 3", "id = 50"), "marker[3].id"),
-    "marker off the card": (edit(TOML, "x_mm = 190.0", "x_mm = 193.0"), "marker[1] (id 1).x_mm"),
-    "duplicate name": (edit(TOML, 'name = "white"', 'name = "black"'), "region[1].name"),
-    "bad name": (edit(TOML, 'name = "white"', 'name = "white card"'), "region[1].name"),
-    "bad role": (edit(TOML, 'role = "backing"', 'role = "substrate"'), "region[0] ('black').role"),
-    "region outside the card": (edit(TOML, "x_mm = 136.0", "x_mm = 150.0"), "region[5] ('colorchecker').x_mm, w_mm"),
-    "region over a marker": (edit(TOML, "x_mm = 30.0", "x_mm = 20.0"), "region[4] ('white_reference').x_mm"),
-    "printed area over a marker": (edit(TOML, "y_mm = 25.0", "y_mm = 20.0"), "printed[0].x_mm, y_mm"),
-    "printed grey out of range": (edit(TOML, "gray = 0.0", "gray = 2.0"), "printed[0].gray"),
-    "missing field": (edit(TOML, "h_mm = 30.0\n", ""), "region[0].h_mm: missing"),
-    "wrong type": (edit(TOML, "size_mm = 16.0", 'size_mm = "16"'), "marker[0].size_mm"),
-    "zero size": (edit(TOML, "w_mm = 40.0", "w_mm = 0"), "region[0] ('black').w_mm"),
-    "card table missing": (TOML.replace("[card]", "[cards]"), "'cards'"),
-    "invalid TOML": (TOML + "\nx = = 1\n", "not valid TOML"),
+    "unknown marker key": (
+        edit(HAND_WRITTEN, "size_mm = 16.0", "size_mm = 16.0\nrotation = 90"),
+        "marker[1].rotation",
+        "rotation = 90",
+    ),
+    "unknown printed key": (edit(HAND_WRITTEN, "gray = 0.0", "gray = 0.0\nink = 'K'"), "printed[1].ink", "ink = 'K'"),
+    "unknown table": (HAND_WRITTEN + "\n[extra]\na = 1\n", "extra", "[extra]"),
+    "unknown dictionary": (edit(HAND_WRITTEN, "DICT_4X4_50", "DICT_4X4_51"), "card.dictionary", 'dictionary = "DICT'),
+    "too few markers": (drop_markers(HAND_WRITTEN, 2, 3), "marker", "[[marker]]"),
+    "duplicate id": (edit(HAND_WRITTEN, "id = 3", "id = 0"), "marker[4].id", "id = 0"),
+    "id outside the dictionary": (edit(HAND_WRITTEN, "id = 3", "id = 50"), "marker[4].id", "id = 50"),
+    "marker off the card": (edit(HAND_WRITTEN, "x_mm = 190.0", "x_mm = 193.0"), "marker[2].x_mm", "x_mm = 193.0"),
+    "duplicate name": (edit(HAND_WRITTEN, 'name = "white"', 'name = "black"'), "region[2].name", 'name = "black"'),
+    "bad name": (edit(HAND_WRITTEN, 'name = "white"', 'name = "white card"'), "region[2].name", 'name = "white card"'),
+    "bad role": (edit(HAND_WRITTEN, 'role = "backing"', 'role = "substrate"'), "region[1].role", 'role = "substrate"'),
+    "region outside the card": (edit(HAND_WRITTEN, "x_mm = 136.0", "x_mm = 150.0"), "region[6].x_mm", "x_mm = 150.0"),
+    "region over a marker": (edit(HAND_WRITTEN, "x_mm = 30.0", "x_mm = 20.0"), "region[5].x_mm", "x_mm = 20.0"),
+    "printed area over a marker": (edit(HAND_WRITTEN, "y_mm = 25.0", "y_mm = 20.0"), "printed[1].x_mm", "x_mm = 10.0"),
+    "printed grey out of range": (edit(HAND_WRITTEN, "gray = 0.0", "gray = 2.0"), "printed[1].gray", "gray = 2.0"),
+    "missing field": (edit(HAND_WRITTEN, "h_mm = 30.0\n", ""), "region[1].h_mm", "[[region]]"),
+    "wrong type": (edit(HAND_WRITTEN, "size_mm = 16.0", 'size_mm = "16"'), "marker[1].size_mm", 'size_mm = "16"'),
+    "zero size": (edit(HAND_WRITTEN, "w_mm = 40.0", "w_mm = 0"), "region[1].w_mm", "w_mm = 0"),
+    "card table missing": (HAND_WRITTEN.replace("[card]", "[cards]"), "cards", "[cards]"),
+    "nested metadata": (edit(HAND_WRITTEN, 'over = "black"', "over = { a = 1 }"), "region[3].over", "over = { a = 1 }"),
+    "invalid TOML": (HAND_WRITTEN + "\nx = = 1\n", None, "x = = 1"),
 }
 
 
 @pytest.mark.parametrize("case", BAD_LAYOUTS)
-def test_bad_layout_is_refused_naming_file_and_field(tmp_path, case):
-    text, field = BAD_LAYOUTS[case]
+def test_bad_layout_is_refused_naming_file_line_and_field(tmp_path, case):
+    text, field, line_text = BAD_LAYOUTS[case]
     path = tmp_path / "my_card.toml"
     path.write_text(text, encoding="utf-8")
-    with pytest.raises(LayoutError) as error:
-        load_layout(path)
-    message = str(error.value)
-    assert message.startswith(f"{path}: ")
-    assert field in message
+    with pytest.raises(InputError) as error:
+        load_card_layout(path)
+    assert (error.value.path, error.value.field) == (path, field)
+    assert line_text in text.splitlines()[error.value.line - 1]
+    assert str(error.value).startswith(f"{path}, line {error.value.line}: ")
 
 
-def test_missing_layout_file_is_a_layout_error(tmp_path):
-    with pytest.raises(LayoutError, match=r"nowhere\.toml: cannot read"):
-        load_layout(tmp_path / "nowhere.toml")
+def test_a_bad_layout_exits_2_with_a_message_naming_the_field(tmp_path, capsys):
+    path = tmp_path / "card.toml"
+    path.write_text(edit(HAND_WRITTEN, "id = 3", "id = 0"), encoding="utf-8")
+    assert cli.main(["card", "--layout", str(path), "-o", str(tmp_path / "card.png")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{path}, line" in err and "field 'marker[4].id': duplicate id 0 (also marker[1])" in err
+    assert not (tmp_path / "card.png").exists()
+
+
+def test_missing_layout_file_is_refused_naming_it(tmp_path):
+    with pytest.raises(InputError, match="does not exist") as error:
+        load_card_layout(tmp_path / "nowhere.toml")
+    assert error.value.path == tmp_path / "nowhere.toml"
 
 
 def test_layout_built_in_code_is_checked_too():
     markers = (Marker(0, 5, 5, 18), Marker(1, 177, 5, 18), Marker(2, 5, 117, 18))
-    with pytest.raises(LayoutError, match=r"region\[0\] \('a'\)\.x_mm, y_mm, w_mm, h_mm: overlaps marker\[0\]"):
+    with pytest.raises(
+        LayoutError, match=r"^region\[1\]\.x_mm: region 'a' \(x_mm, y_mm, w_mm, h_mm\) overlaps marker\[1\]"
+    ):
         Layout(200.0, 140.0, "DICT_4X4_50", markers, (Region("a", "film", 20, 20, 30, 30),))
-    with pytest.raises(LayoutError, match=r"region\[0\] \('a'\)\.metadata"):
+    with pytest.raises(LayoutError, match=r"^region\[1\]: region 'a': 'x_mm' is not a usable metadata key") as error:
         Layout(200.0, 140.0, "DICT_4X4_50", markers, (Region("a", "film", 40, 40, 30, 30, {"x_mm": 1.0}),))
+    assert error.value.loc == ("region", 0)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -233,7 +266,11 @@ def test_write_card_png_at_300_dpi(tmp_path):
     assert np.array_equal(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), render_card(LAYOUT, 300 / 25.4))
     data = path.read_bytes()
     x_per_metre, y_per_metre, unit = struct.unpack(">IIB", data[data.index(b"pHYs") + 4 :][:9])
-    assert (x_per_metre, y_per_metre, unit) == (11811, 11811, 1)  # 300 dpi
+    assert (x_per_metre, y_per_metre, unit) == (11811, 11811, 1)  # pixels per metre: 300 / 0.0254 = 11811.02
+    spec = oiio.ImageInput.open(str(path)).spec()
+    assert spec.getattribute("XResolution") == pytest.approx(300.0, abs=0.01)
+    assert spec.getattribute("YResolution") == pytest.approx(300.0, abs=0.01)
+    assert spec.getattribute("ResolutionUnit") in ("in", "inch")
     assert [p.name for p in tmp_path.iterdir()] == ["card.png"]
 
 

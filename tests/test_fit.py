@@ -4,14 +4,13 @@ truth.
 Samples are simulated in a temporary folder from known K and S (Duncan mixtures of the RIT Golden acrylic
 table, scaled x60 to 1/mm) with the closed-form Kubelka-Munk forward model of ``kmpipe.physics.kubelka_munk``
 (itself checked against 50-digit arithmetic in test_kubelka_munk.py), written as reflectance CSVs with a
-manifest, and fitted through the command line. The fitted K and S are compared with the truth that made
-the readings; standard errors are checked by their coverage of the truth over many noisy repeats; the
-joint fit's analytic derivatives are compared with mpmath differentiation of the textbook formula.
+manifest (``simulation.simulate_sample``), and fitted through the command line. The fitted K and S are compared
+with the truth that made the readings; standard errors are checked by their coverage of the truth over many noisy
+repeats; the joint fit's analytic derivatives are compared with mpmath differentiation of the textbook formula.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import hashlib
 import json
@@ -21,111 +20,21 @@ from pathlib import Path
 import mpmath
 import numpy as np
 import pytest
+from simulation import FOUNDATION, REFLECTANCE, cards, rit_mixture, simulate_sample
 
 from kmpipe import cli
 from kmpipe.formats.material import read_material, write_material
 from kmpipe.formats.sample import load_sample
-from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, uniform_grid, write_spectra_csv
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
+from kmpipe.formats.spectral_grid import uniform_grid
 from kmpipe.physics.joint_fit import _Model, _second_difference_penalty
 from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.physics.saunderson import saunderson_forward
 from kmpipe.physics.white import baso4_typical
 from kmpipe.stages.fit import fit_sample
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "recipes" / "samples"
-PIGMENTS = ROOT.parent / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
-PER_MM = 60.0  # the RIT table's S is relative; x60 gives per-mm values typical of a foundation
-FOUNDATION = {
-    "TitaniumWhite": 1.0,
-    "HansaYellowOpaque": 0.3,
-    "CadmiumOrange": 0.25,
-    "PyrroleRed": 0.05,
-    "BoneBlack": 0.25,
-}
-LIPSTICK = {"PyrroleRed": 1.0, "QuinacridoneMagenta": 0.15, "TitaniumWhite": 0.05}
 SAUNDERSON = (0.04, 0.6)
-
-
-# --- simulation helpers -----------------------------------------------------------------------------------
-
-
-def rit_mix(mix: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(wavelengths nm, K 1/mm, S 1/mm) of a Duncan mixture of RIT pigments on the table's 10 nm grid."""
-    with open(PIGMENTS, encoding="utf-8") as handle:
-        rows = list(csv.reader(line for line in handle if not line.startswith("#")))
-    grid = np.array([float(v) for v in rows[0][3:]])
-    table: dict[str, dict[str, np.ndarray]] = {}
-    for row in rows[1:]:
-        table.setdefault(row[0], {})[row[2]] = np.array([float(v) for v in row[3:]])
-    K = PER_MM * sum(c * table[p]["K"] for p, c in mix.items())
-    S = PER_MM * sum(c * table[p]["S"] for p, c in mix.items())
-    return grid, K, S
-
-
-def backings(wavelengths: np.ndarray) -> dict[str, np.ndarray]:
-    """A black (~0.035) and a white (~0.85) drawdown card, with gentle spectral slopes."""
-    x = (wavelengths - 380.0) / 400.0
-    return {"black": 0.035 + 0.006 * x, "white": 0.85 - 0.05 * np.exp(-(wavelengths - 380.0) / 60.0)}
-
-
-REFLECTANCE = {"quantity": "reflectance", "units": "1", "note": "simulated by tests/test_fit.py"}
-
-
-def write_sample(
-    folder: Path,
-    wavelengths: np.ndarray,
-    K: np.ndarray,
-    S: np.ndarray,
-    *,
-    thicknesses_um=(15, 30),
-    masstone: bool = True,
-    overs=("black", "white"),
-    saunderson: tuple[float, float] | None = None,
-    noise: float = 0.0,
-    rng: np.random.Generator | None = None,
-    fit_table: str = "",
-    name: str = "T",
-) -> Path:
-    """Reflectance CSVs and a manifest (no [white]) for films over two cards and a masstone; returns its path.
-
-    Readings are KM reflectances (with surface reflection added by Saunderson when given, to the films,
-    the masstone and the bare cards alike) plus Gaussian noise of standard deviation ``noise`` on the
-    film and masstone readings. The cards are written noise-free: the fit takes them as known.
-    """
-    folder.mkdir(parents=True, exist_ok=True)
-    cards = backings(wavelengths)
-    columns, readings, films = [], [], []
-    if masstone:
-        columns.append("masstone")
-        readings.append(reflectance_infinite(K, S))
-    for um in thicknesses_um:
-        for over in overs:
-            column = f"film_{um}um_over_{over}"
-            columns.append(column)
-            readings.append(reflectance_over_background(K, S, um / 1000.0, cards[over]))
-            films.append((column, over, um))
-    readings = np.array(readings)
-    card_values = np.array([cards["black"], cards["white"]])
-    if saunderson is not None:
-        readings = saunderson_forward(readings, *saunderson)
-        card_values = saunderson_forward(card_values, *saunderson)
-    if noise:
-        readings = readings + rng.normal(0.0, noise, readings.shape)
-    write_spectra_csv(
-        SpectralTable(wavelengths, None, ("black", "white"), card_values, REFLECTANCE), folder / "cards.csv"
-    )
-    write_spectra_csv(SpectralTable(wavelengths, None, tuple(columns), readings, REFLECTANCE), folder / "readings.csv")
-    text = f'[sample]\nname = "{name}"\nproduct = "simulated"\nkind = "test"\n\n{fit_table}'
-    for card in ("black", "white"):
-        text += f'\n[[backing]]\nname = "{card}"\nfile = "cards.csv"\ncolumn = "{card}"\n'
-    if masstone:
-        text += '\n[[masstone]]\nfile = "readings.csv"\ncolumn = "masstone"\n'
-    for column, over, um in films:
-        text += f'\n[[film]]\nfile = "readings.csv"\ncolumn = "{column}"\nover = "{over}"\nthickness = "{um} um"\n'
-    path = folder / "manifest.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
 
 
 def _no_constants(name: str):
@@ -150,7 +59,7 @@ def rel_err(got, want) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def foundation():
-    return rit_mix(FOUNDATION)
+    return rit_mixture(FOUNDATION)
 
 
 # --- noise-free recovery ------------------------------------------------------------------------------------
@@ -160,7 +69,7 @@ def foundation():
 @pytest.mark.parametrize("method", ["two-constant", "black-white", "lsq"])
 def test_noise_free_readings_give_back_k_and_s(tmp_path, capsys, foundation, method, saunderson):
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "sample", wavelengths, K, S, saunderson=saunderson)
+    manifest = simulate_sample(tmp_path / "sample", wavelengths, K, S, saunderson=saunderson).manifest
     out = tmp_path / "material.json"
     extra = ["--saunderson", f"{saunderson[0]},{saunderson[1]}"] if saunderson else []
     status, err = run_fit(capsys, str(manifest), "-o", str(out), "--method", method, *extra)
@@ -184,9 +93,9 @@ def test_noise_free_readings_give_back_k_and_s(tmp_path, capsys, foundation, met
 def test_fit_settings_from_the_manifest_equal_command_line_options(tmp_path, capsys, foundation):
     wavelengths, K, S = foundation
     fit_table = f'[fit]\nmethod = "black-white"\nsaunderson = [{SAUNDERSON[0]}, {SAUNDERSON[1]}]\n'
-    in_manifest = write_sample(tmp_path / "a", wavelengths, K, S, saunderson=SAUNDERSON, fit_table=fit_table)
-    on_line = write_sample(tmp_path / "b", wavelengths, K, S, saunderson=SAUNDERSON)
-    assert run_fit(capsys, str(in_manifest), "-o", str(tmp_path / "a.json"))[0] == 0
+    in_manifest = simulate_sample(tmp_path / "a", wavelengths, K, S, saunderson=SAUNDERSON, fit_table=fit_table)
+    on_line = simulate_sample(tmp_path / "b", wavelengths, K, S, saunderson=SAUNDERSON).manifest
+    assert run_fit(capsys, str(in_manifest.manifest), "-o", str(tmp_path / "a.json"))[0] == 0
     options = ["--method", "black-white", "--saunderson", f"{SAUNDERSON[0]},{SAUNDERSON[1]}"]
     assert run_fit(capsys, str(on_line), "-o", str(tmp_path / "b.json"), *options)[0] == 0
     a, b = read_material(tmp_path / "a.json"), read_material(tmp_path / "b.json")
@@ -199,9 +108,9 @@ def test_fit_settings_from_the_manifest_equal_command_line_options(tmp_path, cap
 def test_repeats_are_several_entries_with_the_same_film(tmp_path, foundation):
     """Two identical film entries (a repeat) change nothing in a noise-free fit."""
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S).manifest
     text = manifest.read_text(encoding="utf-8")
-    repeat = '\n[[film]]\nfile = "readings.csv"\ncolumn = "film_15um_over_black"\nover = "black"\nthickness = "15 um"\n'
+    repeat = '\n[[film]]\nfile = "readings.csv"\ncolumn = "film_15um_black_1"\nover = "black"\nthickness = "15 um"\n'
     manifest.write_text(text + repeat, encoding="utf-8")
     sample = load_sample(manifest)
     assert len(sample.measurements) == 6
@@ -226,7 +135,7 @@ def test_standard_errors_cover_the_truth(tmp_path, foundation, given):
     rng = np.random.default_rng(20261121)
     z_K, z_S, sigmas = [], [], []
     for repeat in range(25):
-        manifest = write_sample(tmp_path / f"r{repeat}", wavelengths, K, S, noise=sigma, rng=rng)
+        manifest = simulate_sample(tmp_path / f"r{repeat}", wavelengths, K, S, noise=sigma, rng=rng).manifest
         material = fit_sample(load_sample(manifest), method="lsq", noise=sigma if given else None)
         assert material.fit["noise_source"] == ("given" if given else "residuals")
         sigmas.append(material.fit["noise_sigma"])
@@ -301,7 +210,7 @@ def test_bundled_materials_are_strict_json_with_true_provenance(bundled):
 def test_material_round_trip_is_exact(tmp_path, foundation):
     wavelengths, K, S = foundation
     rng = np.random.default_rng(7)
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S, noise=0.002, rng=rng)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S, noise=0.002, rng=rng).manifest
     material = fit_sample(load_sample(manifest), method="lsq")
     # Make the round trip harder: unbounded errors at a few wavelengths and every flag somewhere.
     K_se = material.K_stderr.copy()
@@ -345,7 +254,7 @@ def test_exactly_determined_fit_has_null_standard_errors(tmp_path, capsys, found
     (S X ~ 1) is far from opaque.
     """
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S, thicknesses_um=(20,), masstone=False)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S, thicknesses_um=(20,), masstones=0).manifest
     out = tmp_path / "m.json"
     status, err = run_fit(capsys, str(manifest), "-o", str(out), "--method", method)
     assert status == 0, err
@@ -376,7 +285,7 @@ def cli_status(capsys, args: list[str]) -> tuple[int, str]:
 def test_fit_options_are_checked_like_the_manifest_fields(tmp_path, capsys, foundation, option):
     """The manifest refuses noise outside (0, 0.5) and negative smoothness; the options must refuse them too."""
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S).manifest
     out = tmp_path / "m.json"
     status, err = cli_status(capsys, ["fit", str(manifest), "-o", str(out), *option])
     assert status == 2
@@ -390,8 +299,8 @@ def test_two_samples_with_one_name_do_not_overwrite_each_other(tmp_path, capsys,
     The second would silently replace the first; kmpipe must refuse (exit 2) instead.
     """
     wavelengths, K, S = foundation
-    first = write_sample(tmp_path / "a", wavelengths, K, S, name="same")
-    second = write_sample(tmp_path / "b", wavelengths, K * 1.1, S, name="same")
+    first = simulate_sample(tmp_path / "a", wavelengths, K, S, name="same").manifest
+    second = simulate_sample(tmp_path / "b", wavelengths, K * 1.1, S, name="same").manifest
     out = tmp_path / "out"
     status, err = cli_status(capsys, ["fit", str(first), str(second), "-o", str(out)])
     assert status == 2
@@ -409,14 +318,14 @@ def test_opaque_films_are_flagged_and_keep_exact_k_over_s(tmp_path, capsys, foun
     finite, non-negative and no larger than the truth (the lower bound at which the film looks opaque).
     """
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S, thicknesses_um=(2000, 5000))
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S, thicknesses_um=(2000, 5000)).manifest
     out = tmp_path / "m.json"
     status, err = run_fit(capsys, str(manifest), "-o", str(out), "--method", method)
     assert status == 0, err
     doc = strict_json(out)
     assert doc["flags"]["opaque"] == list(wavelengths)
     material = read_material(out)
-    R = read_spectra_csv(tmp_path / "s" / "readings.csv").column("masstone")
+    R = read_spectra_csv(tmp_path / "s" / "readings.csv").column("masstone_1")
     assert np.max(rel_err(material.ks_ratio, (1.0 - R) ** 2 / (2.0 * R))) < 1e-6
     for values in (material.K, material.S):
         assert np.all(np.isfinite(values)) and np.all(values >= 0.0)
@@ -428,7 +337,7 @@ def test_opaque_films_are_flagged_and_keep_exact_k_over_s(tmp_path, capsys, foun
 
 def test_grid_option_fits_on_that_grid(tmp_path, capsys, foundation):
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S).manifest
     out = tmp_path / "m.json"
     status, err = run_fit(capsys, str(manifest), "-o", str(out), "--grid", "400:700:10")
     assert status == 0, err
@@ -445,20 +354,20 @@ def test_default_grid_is_5_nm_for_finer_data_and_the_data_grid_otherwise(tmp_pat
     fine = uniform_grid(382, 748, 1)  # 1 nm data whose ends are not multiples of 5 nm
     K, S = np.interp(fine, table_grid, K10), np.interp(fine, table_grid, S10)
     out = tmp_path / "fine.json"
-    assert run_fit(capsys, str(write_sample(tmp_path / "fine", fine, K, S)), "-o", str(out))[0] == 0
+    assert run_fit(capsys, str(simulate_sample(tmp_path / "fine", fine, K, S).manifest), "-o", str(out))[0] == 0
     material = read_material(out)
     assert np.array_equal(material.wavelengths, uniform_grid(385, 745, 5))
     keep = np.isin(fine, material.wavelengths)
     assert np.max(rel_err(material.K, K[keep])) < 1e-9
     out = tmp_path / "coarse.json"
-    coarse = write_sample(tmp_path / "coarse", table_grid, K10, S10)
+    coarse = simulate_sample(tmp_path / "coarse", table_grid, K10, S10).manifest
     assert run_fit(capsys, str(coarse), "-o", str(out))[0] == 0
     assert np.array_equal(read_material(out).wavelengths, table_grid)
 
 
 def test_grid_in_the_manifest_fits_on_that_grid(tmp_path, capsys, foundation):
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S, fit_table='[fit]\ngrid = "450:650:20"\n')
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S, fit_table='[fit]\ngrid = "450:650:20"\n').manifest
     out = tmp_path / "m.json"
     assert run_fit(capsys, str(manifest), "-o", str(out))[0] == 0
     assert np.array_equal(read_material(out).wavelengths, uniform_grid(450, 650, 20))
@@ -467,7 +376,7 @@ def test_grid_in_the_manifest_fits_on_that_grid(tmp_path, capsys, foundation):
 @pytest.mark.parametrize("grid", ["300:700:10", "400:800:10"])
 def test_grid_beyond_the_data_is_refused(tmp_path, capsys, foundation, grid):
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S).manifest
     out = tmp_path / "m.json"
     status, err = run_fit(capsys, str(manifest), "-o", str(out), "--grid", grid)
     assert status == 2
@@ -483,13 +392,13 @@ def test_grid_beyond_the_data_is_refused(tmp_path, capsys, foundation, grid):
 @pytest.mark.parametrize("with_dark", [False, True], ids=["no-dark", "dark"])
 def test_ingest_gives_back_the_simulated_reflectance(tmp_path, capsys, foundation, with_dark):
     wavelengths, K, S = foundation
-    cards = backings(wavelengths)
+    backings = cards(wavelengths)
     reflectance = np.array(
         [
             reflectance_infinite(K, S),
-            reflectance_over_background(K, S, 0.015, cards["black"]),
-            reflectance_over_background(K, S, 0.015, cards["white"]),
-            cards["white"],
+            reflectance_over_background(K, S, 0.015, backings["black"]),
+            reflectance_over_background(K, S, 0.015, backings["white"]),
+            backings["white"],
         ]
     )
     columns = ("masstone", "film_over_black", "film_over_white", "white_card")
@@ -548,7 +457,8 @@ DPS = 50
 
 
 def textbook_film(K, S, X, G):
-    """R of a KM film over G, textbook sinh/cosh form (thesis eq. 4.4 with 3.13); K = 0 by its limit."""
+    """R of a KM film over G, textbook sinh/cosh form (thesis eq. 3.8, thesis eq. 3.9, thesis eq. 3.14); K = 0 by its
+    limit."""
     K, S, X, G = (mpmath.mpf(v) for v in (K, S, X, G))
     if K == 0:
         R0, T = S * X / (1 + S * X), 1 / (1 + S * X)
@@ -677,7 +587,7 @@ def test_readings_of_1_5_give_finite_flagged_k_and_s(tmp_path, capsys, foundatio
     reflection); over a backing above 1 the model diverged (inf, then NaN in MATERIAL.json: exit 70). Now such
     readings are fitted as 1 and their wavelengths flagged out_of_range; the residuals keep the readings."""
     wavelengths, K, S = foundation
-    manifest = write_sample(tmp_path / "s", wavelengths, K, S, saunderson=saunderson)
+    manifest = simulate_sample(tmp_path / "s", wavelengths, K, S, saunderson=saunderson).manifest
     spike = 10
     for name in ("readings.csv", "cards.csv"):
         table = read_spectra_csv(manifest.parent / name)

@@ -37,7 +37,8 @@ import pytest
 from kmpipe.formats.material import read_material
 from kmpipe.formats.scene import Scene, load_scene
 from kmpipe.physics.optical_tables import exact_rgb, working_space
-from kmpipe.stages.render import GROUND_EXTENT, camera_for, plan_scene, turntable_model
+from kmpipe.stages.render import renderer_scenes
+from kmpipe.stages.render_plan import GROUND_EXTENT, plan_scene
 from renderer.image_io import read_exr
 
 GOLDEN = Path(__file__).resolve().parent / "data" / "golden"
@@ -84,10 +85,15 @@ def goldens(scene: str) -> list[tuple[np.ndarray, dict]]:
     return [read_exr(path) for path in make_golden.golden_paths(scene)]
 
 
+def framed(scene: Scene, turntable_deg: float = 0.0):
+    """The renderer's scene of ``scene`` turned by ``turntable_deg``, as kmpipe renders it: its camera and model."""
+    return renderer_scenes(scene, plan_scene(scene), [turntable_deg])[0]
+
+
 def to_pixels(scene: Scene, points) -> np.ndarray:
     """(column, row) image coordinates (pixel centres at + 0.5, row 0 at the top) of world points (mm)."""
     width, height = scene.info.scene.resolution
-    camera = camera_for(scene)
+    camera = framed(scene).camera
     points = np.asarray(points, dtype=float)
     clip = np.c_[points, np.ones(len(points))] @ (camera.projection_matrix(width / height) @ camera.view_matrix()).T
     assert np.all(clip[:, 3] > 0), "a point behind the camera"
@@ -101,7 +107,7 @@ def placed_vertices(scene: Scene, model: np.ndarray) -> np.ndarray:
 
 def empty_pixels(scene: Scene, turntable_deg: float) -> np.ndarray:
     """Pixels no surface can cover: outside the projected hull of the turned mesh and the ground, grown by a pixel."""
-    points = [placed_vertices(scene, turntable_model(scene, turntable_deg))]
+    points = [placed_vertices(scene, framed(scene, turntable_deg).model)]
     if (
         scene.info.ground is not None
     ):  # as kmpipe.stages.render places it: a square of GROUND_EXTENT radii under the product

@@ -3,8 +3,8 @@ status 2 on the command line), never an internal error (exit 70), a hang or an a
 
 Materials (kmpipe.formats.material.read_material), sample manifests (kmpipe.formats.manifest.load_manifest),
 validation configs
-(kmpipe.validation.checks.Thresholds.from_toml) and card layouts (instruments.drawdown_card.load_layout, ``kmpipe
-card``).
+(kmpipe.formats.thresholds.Thresholds.from_toml) and card layouts
+(kmpipe.formats.card_layout.load_card_layout, ``kmpipe card``).
 Scenes and recipes are in test_render_scene.py, readings above 1 in test_fit.py.
 """
 
@@ -23,7 +23,7 @@ from kmpipe import cli
 from kmpipe.errors import InputError
 from kmpipe.formats.manifest import load_manifest
 from kmpipe.formats.material import Material, MeasurementFit, material_to_dict, read_material, write_material
-from kmpipe.validation.checks import Thresholds
+from kmpipe.formats.thresholds import Thresholds
 
 WAVELENGTHS = np.array([400.0, 500.0, 600.0])
 
@@ -312,10 +312,11 @@ def test_a_validation_config_that_is_not_a_file_is_refused(tmp_path):
 
 @pytest.mark.parametrize(("key", "value"), [("width_mm", "1e9"), ("height_mm", "501"), ("width_mm", "nan")])
 def test_kmpipe_card_refuses_a_card_larger_than_500_mm(tmp_path, capsys, key, value):
-    from instruments.drawdown_card import default_layout, write_layout
+    from instruments.drawdown_card.layout import default_layout
+    from kmpipe.formats.card_layout import write_card_layout
 
     layout = tmp_path / "card.toml"
-    write_layout(default_layout(), layout)
+    write_card_layout(default_layout(), layout)
     text = layout.read_text(encoding="utf-8")
     lines = [f"{key} = {value}" if line.startswith(f"{key} =") else line for line in text.splitlines()]
     layout.write_text("\n".join(lines) + "\n", encoding="utf-8")

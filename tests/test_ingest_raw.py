@@ -13,8 +13,9 @@ import pytest
 from card_photo import Scene, photograph, region_reflectances
 from dng_fixtures import write_jpeg
 
-from instruments.drawdown_card import default_layout, load_layout, write_layout
+from instruments.drawdown_card.layout import default_layout
 from kmpipe.cli import main
+from kmpipe.formats.card_layout import load_card_layout, write_card_layout
 from kmpipe.formats.material import read_material
 from kmpipe.formats.spectra import read_spectra_csv
 
@@ -35,7 +36,7 @@ def run(capsys, *args) -> tuple[int, str, str]:
 def card(tmp_path_factory):
     folder = tmp_path_factory.mktemp("card")
     layout = default_layout()
-    write_layout(layout, folder / "layout.toml")
+    write_card_layout(layout, folder / "layout.toml")
     photos = [folder / f"photo{i}.dng" for i in range(3)]
     for seed, photo in enumerate(photos):
         photograph(layout, replace(SCENE, angle_deg=5.0 + 4 * seed), photo, seed=seed)
@@ -167,7 +168,7 @@ def test_card_command_writes_a_printable_card_and_its_layout(tmp_path, capsys):
     status, _, err = run(capsys, "card", "-o", tmp_path / "card.pdf")
     assert status == 0, err
     assert (tmp_path / "card.pdf").read_bytes().startswith(b"%PDF")
-    layout = load_layout(tmp_path / "card.layout.toml")
+    layout = load_card_layout(tmp_path / "card.layout.toml")
     assert layout == default_layout()
     status, _, err = run(capsys, "card", "-o", tmp_path / "card.png", "--layout", tmp_path / "card.layout.toml")
     assert status == 0, err
@@ -184,7 +185,7 @@ def test_a_colorchecker_in_the_photo_gives_device_independent_channels(tmp_path,
     from kmpipe.physics.colorimetry import white_XYZ
 
     layout = default_layout()
-    write_layout(layout, tmp_path / "layout.toml")
+    write_card_layout(layout, tmp_path / "layout.toml")
     photo = tmp_path / "chart.dng"
     photograph(layout, replace(SCENE, colorchecker=True), photo)
     status, _, err = run(

@@ -16,19 +16,18 @@ elements must still give K/S to 1e-9, and K, S no larger than the truth (a lower
 from __future__ import annotations
 
 import functools
-from pathlib import Path
 
 import mp_reference as ref
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from simulation import cards, rit_pigments
 
 from kmpipe.physics import inversion as inv
 from kmpipe.physics import saunderson as sd
 from kmpipe.physics.flags import Flag
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
 #: the RIT table's S is relative (titanium white = 1); x10 makes it per mm for films of 10-300 um.
 #: K is scaled alike so that K/S, and so the masstone, is the table's.
 SCALE_PER_MM = 10.0
@@ -48,27 +47,12 @@ ANY_FLAG = int(Flag.OPAQUE | Flag.OUT_OF_RANGE | Flag.NO_CONTRAST | Flag.AT_BOUN
 # ---------------------------------------------------------------------------------------------
 @functools.cache
 def rit_table():
-    """(names, wavelengths_nm, K, S) from the RIT table, K and S in 1/mm, shape (n_pigments, n_wl)."""
-    lines = [ln for ln in DATA.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
-    header = lines[0].split(",")
-    assert header[:3] == ["pigment", "colour_index", "quantity"]
-    wl = np.array([float(v) for v in header[3:]])
-    K, S, names = {}, {}, []
-    for ln in lines[1:]:
-        cells = ln.split(",")
-        values = np.array([float(v) for v in cells[3:]])
-        assert values.shape == wl.shape
-        (K if cells[2] == "K" else S)[cells[0]] = values * SCALE_PER_MM
-        if cells[0] not in names:
-            names.append(cells[0])
-    assert set(K) == set(S) == set(names)
-    return names, wl, np.array([K[n] for n in names]), np.array([S[n] for n in names])
-
-
-def cards(wl):
-    """Gently wavelength-dependent black (~0.03) and white (~0.85) card reflectances."""
-    u = (wl - 380.0) / 370.0
-    return 0.035 - 0.01 * u, 0.82 + 0.06 * u - 0.03 * u * u
+    """(names, wavelengths_nm, K, S) of the RIT paints (``simulation.rit_pigments``), K and S x ``SCALE_PER_MM`` in
+    1/mm, shape (n_pigments, n_wl)."""
+    table = rit_pigments()
+    K = np.array([table.K[name] for name in table.names])
+    S = np.array([table.S[name] for name in table.names])
+    return table.names, table.wavelengths, SCALE_PER_MM * K, SCALE_PER_MM * S
 
 
 def _to_float(a):
@@ -84,7 +68,8 @@ def simulated(X: float, saunderson: bool):
     code's ``saunderson_inverse`` before it is inverted (as the pipeline does).
     """
     _, wl, K, S = rit_table()
-    Gb, Gw = cards(wl)
+    backings = cards(wl)
+    Gb, Gw = backings["black"], backings["white"]
     Rob = ref.vec(ref.reflectance, K, S, X, Gb, as_float=False)
     Row = ref.vec(ref.reflectance, K, S, X, Gw, as_float=False)
     Rinf = ref.vec(ref.r_inf, K, S, as_float=False)
@@ -210,9 +195,25 @@ def test_dark_film_over_grey_black_card_is_in_range():
     np.testing.assert_allclose([res.K, res.S], [K, S], rtol=WELL)
 
 
+def test_two_constant_is_the_printed_eq_4_1_where_that_is_real():
+    """Over a black card (R and R_g below R_inf) thesis eq. 4.1 and thesis eq. 4.2 as printed (arcoth,
+    a = (1/R_inf + R_inf) / 2; 50 digits on the float readings) are real: the real-valued form gives the same K, S."""
+    K = np.array([0.02, 0.3, 1.0, 5.0, 30.0])
+    S = np.array([5.0, 1.0, 2.0, 0.5, 3.0])
+    X, Rg = 0.02, 0.035
+    R_inf = ref.vec(ref.r_inf, K, S)
+    R = ref.vec(ref.reflectance, K, S, X, Rg)
+    K_printed, S_printed = ref.vec(ref.two_constant_arcoth, R_inf, R, Rg, X, nout=2)
+    res = inv.two_constant(R_inf, R, Rg, X)
+    assert np.all(np.asarray(res.flags) == 0)
+    np.testing.assert_allclose(res.K, K_printed, rtol=WELL)
+    np.testing.assert_allclose(res.S, S_printed, rtol=WELL)
+    np.testing.assert_allclose([res.K, res.S], [K, S], rtol=WELL)
+
+
 def test_film_brighter_than_its_masstone_over_white_is_in_range():
     # Over a light card a weakly scattering, weakly absorbing film reads above its own masstone:
-    # eq. 4.1's arcoth form is complex there, the real form is not.
+    # thesis eq. 4.1's arcoth form is complex there, the real form is not.
     K, S, X, Gw = 0.5, 1.0, 0.3, 0.85
     R_inf = float(ref.r_inf(K, S))
     R = float(ref.reflectance(K, S, X, Gw))

@@ -104,6 +104,17 @@ def test_reflectance_over_background_matches_mp():
     assert bad.size == 0, [(K[i], S[i], X[i], Rg[i], R[i], float(R_ref[i])) for i in bad[:5]]
 
 
+def test_reflectance_over_background_is_the_printed_eq_3_5():
+    """Thesis eq. 3.5 as printed, R = (1 - Rg (a - b coth(bSX))) / (a - Rg + b coth(bSX)) at 50 digits, wherever it
+    is defined (K, S, X > 0): an independent check of the R0, T route kmpipe takes."""
+    K, S, X, Rg = _grid((1e-6, 0.3, 5.0, 1e3), (1e-6, 0.7, 20.0, 1e4), (0.001, 0.01, 1.0, 50.0), (0, 0.035, 0.86, 1))
+    R = km.reflectance_over_background(K, S, X, Rg)
+    R_ref = ref.vec(ref.reflectance_coth, K, S, X, Rg, as_float=False)
+    errs = ref.mp_rel_err(R, R_ref)
+    bad = np.flatnonzero(~(errs <= RTOL) & (R_ref.astype(float) > TINY))
+    assert bad.size == 0, [(K[i], S[i], X[i], Rg[i], R[i], float(R_ref[i])) for i in bad[:5]]
+
+
 def test_film_over_background_matches_mp():
     R0, T, Rg = _grid((0.0, 1e-9, 0.2, 0.6, 0.999), (0.0, 1e-9, 0.1, 0.39, 0.999), (0.0, 0.04, 0.5, 0.9, 1.0))
     keep = R0 + T <= 1.0

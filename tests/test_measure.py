@@ -18,9 +18,11 @@ import numpy as np
 import pytest
 import serial
 
-from instruments.cs2000.emulator import Emulator, Fault, read_reflectance_csv
+from instruments.cs2000.emulator.faults import Fault
+from instruments.cs2000.emulator.server import Emulator
 from instruments.session_log import read_session_log
 from kmpipe.cli import main
+from kmpipe.formats.emulator_script import emulator_from_script, read_reflectance_samples
 from kmpipe.formats.spectra import read_spectra_csv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -211,7 +213,7 @@ def material_grid(material: dict) -> np.ndarray:
 
 def test_live_session_then_fit_recovers_the_truth_and_validates(tmp_path, capsys):
     folder = tmp_path / "F1"
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, link=tmp_path / "cs2000") as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, link=tmp_path / "cs2000") as emulator:
         status, err = measure(capsys, emulator.link, folder)
         truth = emulator.measurements
     assert status == 0, err
@@ -245,7 +247,7 @@ def test_interrupted_session_resumes_where_it_stopped(tmp_path, capsys):
     saved = 4  # the port vanishes during the 5th reading
     folder = tmp_path / "F1"
     fault = Fault("disconnect", "MEDR,1,1,2", occurrence=saved + 1)
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[fault]) as first:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[fault]) as first:
         status, err = measure(capsys, first.port, folder)
         before = first.measurements
     assert status == 2
@@ -261,7 +263,7 @@ def test_interrupted_session_resumes_where_it_stopped(tmp_path, capsys):
 
     # a fresh instrument (after a re-plug) with the rest of the plan's samples under it, one at a time
     settings = script_settings()
-    samples = read_reflectance_csv(F1 / settings["file"])
+    samples = read_reflectance_samples(F1 / settings["file"])
     rest = settings["sequence"][saved:]
     log = tmp_path / "resumed.jsonl"
     with Emulator(
@@ -319,7 +321,7 @@ def test_a_noise_line_before_a_reply_does_not_crash_the_session(tmp_path, capsys
     it (exit 0), or stop with the clear error that keeps the readings (exit 2), never fail as an internal error."""
     folder = tmp_path / "F1"
     noise = Fault("garbage", "MEDR,1,1,1", occurrence=2, garbage=b"\x00\xfe\r\n")
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[noise]) as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[noise]) as emulator:
         status, err = measure(capsys, emulator.port, folder)
         truth = emulator.measurements
     assert status in (0, 2), err
@@ -336,7 +338,7 @@ def test_a_reading_whose_data_are_gone_is_measured_again(tmp_path, capsys):
     the reading is tried again, as kmpipe.stages.measure promises for "no data", and the session completes."""
     folder = tmp_path / "F1"
     gone = [Fault("no_data", "MEDR,1,1,3", occurrence=4), Fault("no_data", "MEDR,0,0,1", occurrence=4)]
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=gone) as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=gone) as emulator:
         status, err = measure(capsys, emulator.port, folder)
         truth = emulator.measurements
     assert status == 0, err
@@ -463,7 +465,7 @@ def test_a_sample_name_that_leads_out_of_the_plan_folder_is_refused(tmp_path, ca
 @pytest.mark.parametrize("name", ["..", ".", "a/b"])
 def test_unsafe_sample_names_are_refused_by_the_plan(tmp_path, name):
     from kmpipe.errors import InputError
-    from kmpipe.stages.measure import load_plan
+    from kmpipe.formats.measurement_plan import load_plan
 
     plan = edited_plan(tmp_path, 'name = "F1"', f"name = {json.dumps(name)}")
     with pytest.raises(InputError) as caught:
@@ -608,7 +610,7 @@ def test_replay_of_another_samples_log_is_refused_and_writes_nothing(tmp_path, c
 
 
 def test_a_recorded_log_names_its_sample_and_plan_and_a_log_without_them_is_replayed_with_a_warning(tmp_path, capsys):
-    from kmpipe.stages.measure import plan_digest
+    from kmpipe.formats.measurement_plan import plan_digest
 
     [connection] = read_session_log(SESSIONS / "complete.jsonl")
     assert connection.header["meta"] == {"sample": "F1", "plan_sha256": plan_digest(PLAN)}
@@ -662,7 +664,7 @@ def test_readings_after_faults_and_resumes_measure_the_sample_they_are_named_for
     sample it is named for, the retried ones included."""
     folder = tmp_path / "F1"
     faults = [Fault("error", "MEAS", occurrence=3, code="ER51"), Fault("over_range", "MEAS", occurrence=6)]
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, noise=0.0, faults=faults) as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, noise=0.0, faults=faults) as emulator:
         status, err = measure(capsys, emulator.port, folder)
         assert status == 2 and "ER51" in err and "2 of 8 readings are saved" in err, err
         assert_each_reading_is_its_sample(folder)
@@ -682,7 +684,7 @@ def test_a_retried_reading_measures_the_same_sample(tmp_path, capsys):
     """ER02 on a spectral block: the reading is measured again, on the sample still under the instrument."""
     folder = tmp_path / "F1"
     busy = Fault("busy", "MEDR,1,1,2", occurrence=3)
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, noise=0.0, faults=[busy]) as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, noise=0.0, faults=[busy]) as emulator:
         status, err = measure(capsys, emulator.port, folder)
         measured = [m.sample for m in emulator.measurements]
     assert status == 0, err
@@ -699,7 +701,7 @@ def test_colorimetry_that_does_not_fit_its_spectrum_is_read_again(tmp_path, caps
     measured again) and the session completes with the instrument's honest values."""
     folder = tmp_path / "F1"
     corrupt = Fault("colorimetry", "MEDR,2,0,0", occurrence=3, values={"x": 10.0, "y": 10.0})
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[corrupt]) as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=[corrupt]) as emulator:
         status, err = measure(capsys, emulator.port, folder)
         truth = emulator.measurements
     assert status == 0, err
@@ -713,7 +715,7 @@ def test_colorimetry_that_does_not_fit_its_spectrum_is_read_again(tmp_path, caps
 def test_colorimetry_that_never_fits_stops_the_session_naming_the_reading(tmp_path, capsys):
     folder = tmp_path / "F1"
     corrupt = [Fault("colorimetry", "MEDR,2,0,0", occurrence=n, values={"Lv": 1.0}) for n in (3, 4, 5)]
-    with Emulator.from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=corrupt) as emulator:
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, faults=corrupt) as emulator:
         status, err = measure(capsys, emulator.port, folder)
     assert status == 2
     stopped = STOPPED.search(err)
@@ -753,7 +755,7 @@ def test_colorimetry_problem_checks_plausibility_and_the_spectrum(values, proble
 def test_kmpipe_run_refuses_to_replay_another_samples_log(tmp_path):
     """``kmpipe run`` replays a product's log through ``run_session(plan, "replay://LOG")``: the same check."""
     from kmpipe.errors import InputError
-    from kmpipe.run.graph import do_material
+    from kmpipe.run.tasks import do_material
 
     with pytest.raises(InputError, match="was recorded for sample L1") as caught:
         do_material("replay", {"plan": str(PLAN), "log": str(DEMO_SESSIONS / "L1.jsonl")}, str(tmp_path / "F1"))

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import csv
 import itertools
 from dataclasses import dataclass
-from pathlib import Path
 
 import colour
 import numpy as np
 import pytest
+from simulation import rit_pigments
 
 from kmpipe.physics.kubelka_munk import film_reflectance_transmittance, stack_over_substrate
 from kmpipe.physics.optical_tables import (
@@ -23,7 +22,6 @@ from kmpipe.physics.optical_tables import (
 )
 from kmpipe.stages.render_plan import plan_render
 
-PIGMENTS = Path("/work/shared/data/pigments/rit_golden_acrylic_ks.csv")
 MODES = ("rgb", "bands:3", "bands:6", "exact")
 
 
@@ -37,13 +35,8 @@ class Film:
 
 def _pigments() -> dict[str, Film]:
     """The 19 RIT paints, K and S x 60 read as 1/mm, on the table's 380-750 nm / 10 nm grid."""
-    with PIGMENTS.open() as handle:
-        rows = [row for row in csv.reader(handle) if not row[0].startswith("#")]
-    wavelengths = np.array(rows[0][3:], dtype=np.float64)
-    values: dict[str, dict[str, np.ndarray]] = {}
-    for row in rows[1:]:
-        values.setdefault(row[0], {})[row[2]] = 60.0 * np.array(row[3:], dtype=np.float64)
-    return {name: Film(name, wavelengths, v["K"], v["S"]) for name, v in values.items()}
+    table = rit_pigments()
+    return {name: Film(name, table.wavelengths, 60.0 * table.K[name], 60.0 * table.S[name]) for name in table.names}
 
 
 PAINTS = _pigments()

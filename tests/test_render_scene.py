@@ -17,7 +17,7 @@ from kmpipe.errors import InputError
 from kmpipe.formats.material import read_material
 from kmpipe.formats.scene import load_scene
 from kmpipe.physics.optical_tables import composite
-from kmpipe.stages.render import plan_scene
+from kmpipe.stages.render_plan import plan_scene
 from renderer.image_io import read_exr, read_png, srgb_encode
 
 REPO = Path(__file__).resolve().parent.parent
@@ -292,15 +292,15 @@ def test_tone_mapping_changes_the_png_not_the_exr(tmp_path, material_file, capsy
 
 
 def test_a_sheet_of_rendered_frames_labels_itself_from_their_headers(tmp_path, material_file, capsys):
-    from kmpipe.cli import _sheet_labels
+    from kmpipe.stages.sheet import frame_labels
 
     scene_path = write_scene(tmp_path, material_file, "\n[turntable]\nframes = 2\n")
     scene_path.write_text(scene_path.read_text().replace("[scene]\n", '[scene]\nproduct = "Velvet"\nshade = "Ivory"\n'))
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
     frames = [tmp_path / "out" / f"frame_{i:03d}.exr" for i in range(2)]
-    rows, columns, header = _sheet_labels(frames, 1, 2)
-    assert rows == ["Velvet · Ivory"] and columns == ["0°", "180°"]
-    assert header.startswith("F1 on a card · D65 · ")
+    labels = frame_labels(frames, 1, 2)
+    assert labels.rows == ["Velvet · Ivory"] and labels.columns == ["0°", "180°"]
+    assert labels.header.startswith("F1 on a card · D65 · ")
     assert cli.main(["sheet", *map(str, frames), "-o", str(tmp_path / "sheet.png")]) == 0
     assert read_png(tmp_path / "sheet.png").shape[1] > 2 * SIZE
 
@@ -518,7 +518,7 @@ def test_a_recipe_mode_is_checked_as_a_scene_mode_is(tmp_path, material_file):
 
 def test_the_scene_mode_limit_is_the_layer_pass_channel_count():
     from kmpipe.formats.scene import RenderSettings
-    from renderer.layers import MAX_CHANNELS
+    from renderer.stack import MAX_CHANNELS
 
     assert RenderSettings(mode=f"bands:{MAX_CHANNELS}").mode == f"bands:{MAX_CHANNELS}"
     with pytest.raises(ValueError, match=f"N <= {MAX_CHANNELS}"):
@@ -537,30 +537,29 @@ def test_a_render_writes_exr_and_png_pairs_only(tmp_path, material_file, capsys)
 
 
 def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_path, material_file, monkeypatch):
-    import renderer.layers
-    from kmpipe.stages.render import render_scene
+    from kmpipe.stages import render
 
-    monkeypatch.setattr(renderer.layers, "render_layers", lambda *a, **k: np.full((SIZE, SIZE, 3), np.nan))
+    monkeypatch.setattr(render, "render_layers", lambda scene: np.full((SIZE, SIZE, 3), np.nan))
     with pytest.raises(RuntimeError, match="NaN or infinite"):
-        render_scene(write_scene(tmp_path, material_file), tmp_path / "out", echo=lambda text: None)
+        render.render_scene(write_scene(tmp_path, material_file), tmp_path / "out", echo=lambda text: None)
     assert list((tmp_path / "out").iterdir()) == []
 
 
 def test_an_exit_between_the_renames_leaves_no_exr_without_its_png(tmp_path, material_file, monkeypatch):
-    import renderer.image_io
+    import renderer.atomic_write
     from kmpipe.stages.render import render_scene
 
     scene = load_scene(write_scene(tmp_path, material_file))
     out = tmp_path / "out"
     render_scene(scene, out, echo=lambda text: None)
-    real = renderer.image_io.os.replace
+    real = renderer.atomic_write.os.replace
 
     def fail_on_exr(source, target):
         if Path(target) == out / "frame_000.exr":  # the EXR's rename, after the PNG's
             raise KeyboardInterrupt
         real(source, target)
 
-    monkeypatch.setattr(renderer.image_io.os, "replace", fail_on_exr)
+    monkeypatch.setattr(renderer.atomic_write.os, "replace", fail_on_exr)
     with pytest.raises(KeyboardInterrupt):
         render_scene(scene, out, echo=lambda text: None)
     assert sorted(p.name for p in out.iterdir()) == ["frame_000.png"]

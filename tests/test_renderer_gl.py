@@ -12,17 +12,11 @@ import multiprocessing
 
 import numpy as np
 import pytest
+from lambert import lambert
 
 from renderer import context, image_io, meshes
-from renderer.layers import ChannelStack, render_layers
 from renderer.program import Program, ShaderError
 from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera
-
-
-def lambert(mesh, camera, light, albedo, width, height, **options):
-    """A bare Lambert surface of ``albedo`` (linear RGB): the layer pass with no films."""
-    return render_layers(mesh, camera, [light], ChannelStack([], [], albedo), width, height, **options)
-
 
 ALBEDO = np.array([0.5, 0.25, 0.8])
 RADIANCE = np.array([2.0, 3.0, 0.5])

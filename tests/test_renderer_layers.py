@@ -3,7 +3,7 @@
 A 20 x 10 mm card faces the camera and the light head-on in a 64 x 64 orthographic image, so every card pixel
 renders as ``(R @ to_rgb) * E`` with ``R`` the stack's reflectance: each film's ``R0`` and ``T`` interpolated
 linearly at its thickness (mm), then composed bottom-up onto the substrate, ``Rg <- R0 + T^2 Rg / (1 - R0 Rg)``
-(thesis eq. 3.13).
+(thesis eq. 3.14).
 """
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from renderer import meshes
-from renderer.layers import MAX_LAYERS, ChannelStack, LayerTable, render_layers
-from renderer.scene import DirectionalLight, OrthographicCamera
+from renderer.layers import render_layers
+from renderer.scene import DirectionalLight, OrthographicCamera, Scene
+from renderer.stack import MAX_LAYERS, ChannelStack, LayerTable
 
 SIZE = 64
 RADIANCE = np.array([2.0, 3.0, 0.5])
@@ -54,9 +55,12 @@ def card_mask() -> np.ndarray:
     return np.broadcast_to((np.abs(y) < 5.0)[:, None], (SIZE, SIZE))
 
 
+def card_scene(stack, light=HEAD_ON) -> Scene:
+    return Scene(mesh=CARD, camera=CAMERA, lights=[light], stack=stack, resolution=(SIZE, SIZE), background=BACKGROUND)
+
+
 def render(tables, thicknesses, substrate, to_rgb=None, light=HEAD_ON) -> np.ndarray:
-    stack = ChannelStack(tables, thicknesses, substrate, to_rgb)
-    return render_layers(CARD, CAMERA, [light], stack, SIZE, SIZE, background=BACKGROUND)
+    return render_layers(card_scene(ChannelStack(tables, thicknesses, substrate, to_rgb), light))
 
 
 def assert_card_equals(image: np.ndarray, rgb: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -229,7 +233,7 @@ def test_a_substrate_map_mixes_the_basis_per_uv_and_clamps():
     weights[:, :4] = (1.0, 0.0, 0.0)
     weights[:, 4:] = (0.0, 0.5, 1.0)
     stack = ChannelStack([table], [0.01], np.full(3, 0.5), substrate_map=(weights, basis))
-    image = render_layers(CARD, CAMERA, [HEAD_ON], stack, SIZE, SIZE, background=BACKGROUND)
+    image = render_layers(card_scene(stack))
     columns = np.arange(SIZE)[None, :]
     left = np.broadcast_to(columns < 24, (SIZE, SIZE))
     right = np.broadcast_to(columns >= 40, (SIZE, SIZE))

@@ -8,13 +8,16 @@ shadow geometry by similar triangles.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import integrate
 
 from renderer import meshes
-from renderer.layers import ChannelStack, LayerTable, Precomposed, Prop, Specular, render_layers
-from renderer.scene import DirectionalLight, OrthographicCamera, PointLight
+from renderer.layers import render_layers
+from renderer.scene import DirectionalLight, OrthographicCamera, PointLight, Prop, Scene
+from renderer.stack import ChannelStack, LayerTable, Precomposed, Specular
 
 SIZE = 64
 HALF = 10.0  # mm: the image spans [-10, 10] mm in x and y
@@ -45,7 +48,8 @@ def plain_table(r0, t) -> LayerTable:
 
 
 def render(stack, lights, **kwargs):
-    return render_layers(CARD, CAMERA, lights, stack, SIZE, SIZE, background=BACKGROUND, **kwargs)
+    scene = Scene(mesh=CARD, camera=CAMERA, lights=lights, stack=stack, resolution=(SIZE, SIZE), background=BACKGROUND)
+    return render_layers(dataclasses.replace(scene, **kwargs))
 
 
 @pytest.mark.parametrize("theta_deg", [0.0, 20.0, 50.0])
@@ -57,7 +61,7 @@ def test_a_single_lobe_matches_kelemen_with_beckmann_and_schlick(theta_deg, roug
     table = plain_table([0.2, 0.3, 0.4], [0.5, 0.4, 0.3])
     substrate = np.array([0.5, 0.5, 0.5])
     stack = ChannelStack([table], [0.01], substrate)
-    image = render(stack, [DirectionalLight(tuple(-to_light), tuple(radiance))], specular=[Specular(roughness, ior)])
+    image = render(stack, [DirectionalLight(tuple(-to_light), tuple(radiance))], lobes=[Specular(roughness, ior)])
     r = table.r0 + table.t**2 * substrate / (1.0 - table.r0 * substrate)
     f0 = ((ior - 1.0) / (ior + 1.0)) ** 2
     lobe = kelemen((0, 0, 1), to_light, (0, 0, 1), roughness, f0)
@@ -72,7 +76,7 @@ def test_a_lower_lobe_is_attenuated_by_the_films_above_it():
     stack = ChannelStack([top, bottom], [0.01, 0.01], substrate)
     light = DirectionalLight((0.0, 0.0, -1.0), (1.0, 1.0, 1.0))
     lobe = Specular(0.25, 1.5)
-    with_lobe = render(stack, [light], specular=[None, lobe])
+    with_lobe = render(stack, [light], lobes=[None, lobe])
     without = render(stack, [light])
     specular = with_lobe[SIZE // 2, SIZE // 2] - without[SIZE // 2, SIZE // 2]
     expected = np.pi * kelemen((0, 0, 1), (0, 0, 1), (0, 0, 1), 0.25, 0.04) * top.t**2
@@ -123,9 +127,8 @@ def test_a_card_over_a_ground_casts_its_shadow_where_similar_triangles_put_it():
     to_light = np.array([1.0, 0.0, 1.0]) / np.sqrt(2.0)
     light = DirectionalLight(tuple(-to_light), (1.0, 1.0, 1.0))
     stack = ChannelStack([], [], np.full(3, 0.8))
-    image = render_layers(
-        meshes.card(side, side), CAMERA, [light], stack, SIZE, SIZE, model=model, props=[ground], shadow_map_size=2048
-    )
+    card = {"mesh": meshes.card(side, side), "camera": CAMERA, "stack": stack, "resolution": (SIZE, SIZE)}
+    image = render_layers(Scene(lights=[light], model=model, props=[ground], shadow_map_size=2048, **card))
     x, y = pixel_xy()
     on_card = (np.abs(x) < side / 2 - 0.5) & (np.abs(y) < side / 2 - 0.5)
     shadow = (np.abs(x + lift) < side / 2 - 0.5) & (np.abs(y) < side / 2 - 0.5)
@@ -137,9 +140,7 @@ def test_a_card_over_a_ground_casts_its_shadow_where_similar_triangles_put_it():
     np.testing.assert_allclose(image[lit_ground], 0.5 * cos45, rtol=1e-4)
     # Without shadows the same ground is lit everywhere.
     unshadowed = DirectionalLight(tuple(-to_light), (1.0, 1.0, 1.0), cast_shadows=False)
-    open_image = render_layers(
-        meshes.card(side, side), CAMERA, [unshadowed], stack, SIZE, SIZE, model=model, props=[ground]
-    )
+    open_image = render_layers(Scene(lights=[unshadowed], model=model, props=[ground], **card))
     np.testing.assert_allclose(open_image[shadow], 0.5 * cos45, rtol=1e-4)
 
 
@@ -165,7 +166,7 @@ def test_bad_lights_and_lobes_raise_value_error():
     with pytest.raises(ValueError, match="lights"):
         render(stack, [light] * 5)
     with pytest.raises(ValueError, match="specular"):
-        render(ChannelStack([plain_table([0.1] * 3, [0.5] * 3)], [0.01], np.full(3, 0.5)), [light], specular=[None] * 2)
+        render(ChannelStack([plain_table([0.1] * 3, [0.5] * 3)], [0.01], np.full(3, 0.5)), [light], lobes=[None] * 2)
     with pytest.raises(ValueError, match="roughness"):
         Specular(0.0)
     with pytest.raises(ValueError, match="reference distance"):

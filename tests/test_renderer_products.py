@@ -11,16 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from lambert import lambert
 
 from renderer import products
-from renderer.layers import ChannelStack, render_layers
 from renderer.scene import DirectionalLight, OrthographicCamera
-
-
-def lambert(mesh, camera, light, albedo, width, height, **options):
-    """A bare Lambert surface of ``albedo`` (linear RGB): the layer pass with no films."""
-    return render_layers(mesh, camera, [light], ChannelStack([], [], albedo), width, height, **options)
-
 
 BULLETS = [
     {},  # the defaults: 12 mm x 20 mm, 50 degree bevel

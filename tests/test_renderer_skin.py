@@ -1,7 +1,7 @@
 """Makeup on skin (renderer.skin) against references written here, never against numbers the code produced.
 
-References: the skin profile and blend weights as printed in the thesis (Table 3.1, eq. 3.3); conservation laws of
-the blur (a normalised symmetric blur keeps a uniform image and a row's total light, and mirrors a step); closed
+References: the skin profile and blend weights as printed in the thesis (Table 3.1, thesis eq. 3.3); conservation laws
+of the blur (a normalised symmetric blur keeps a uniform image and a row's total light, and mirrors a step); closed
 forms of the layer pass (a film of albedo ``a`` lit at angle theta renders as ``a E cos(theta)``; the Kelemen /
 Szirmay-Kalos lobe written out below); and the continuous sum of Gaussians of Table 3.1 for the blur's size.
 
@@ -21,16 +21,10 @@ from hypothesis.extra.numpy import arrays
 from scipy import optimize, special
 
 from renderer import meshes
-from renderer.layers import ChannelStack, LayerTable, Precomposed, Prop, Specular, render_layers
-from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight
-from renderer.skin import (
-    SKIN_SPECULAR,
-    SKIN_VARIANCES_MM2,
-    SKIN_WEIGHTS,
-    Scattering,
-    blend_weights,
-    render_skin,
-)
+from renderer.layers import render_layers
+from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight, Prop, Scattering, Scene
+from renderer.skin import SKIN_VARIANCES_MM2, SKIN_WEIGHTS, blend_weights, render_skin
+from renderer.stack import SKIN_SPECULAR, ChannelStack, LayerTable, Precomposed, Specular
 
 # Thesis Table 3.1, as printed: variance (mm^2), W_i (R, G, B), W'_i (R, G, B).
 TABLE_3_1 = (
@@ -83,8 +77,11 @@ def make_table(seed: int, channels: int = 3) -> LayerTable:
     return LayerTable(x[:, 0], s * x / (1.0 + (k + s) * x), np.exp(-k * x) / (1.0 + s * x))
 
 
-def skin(stack, lights, mesh=FULL_CARD, camera=CAMERA, size=(SIZE, SIZE), **kwargs) -> np.ndarray:
-    return render_skin(mesh, camera, lights, stack, *size, background=BACKGROUND, **kwargs)
+def skin(stack, lights, mesh=FULL_CARD, camera=CAMERA, size=(SIZE, SIZE), substrate_lobe=SKIN_SPECULAR, **kwargs):
+    """The skin pass on ``stack``, with the skin's own lobe unless told otherwise."""
+    scene = Scene(mesh=mesh, camera=camera, lights=lights, stack=stack, resolution=size, substrate_lobe=substrate_lobe,
+                  background=BACKGROUND, **kwargs)  # fmt: skip
+    return render_skin(scene)
 
 
 # --- Table 3.1 -------------------------------------------------------------------------------------------------------
@@ -99,7 +96,7 @@ def test_the_profile_is_table_3_1():
 
 def test_blend_weights_reproduce_table_3_1_as_printed():
     """W'_i of all four rows to the printed digits. The finest printed digit is the 4th decimal, so the tolerance is
-    one unit of it: eq. 3.3 on the printed W_i gives 0.32501 and 0.35838 where the table prints 0.3251 and 0.3583
+    one unit of it: thesis eq. 3.3 on the printed W_i gives 0.32501 and 0.35838 where the table prints 0.3251 and 0.3583
     (neither is the rounding of the other to 4 digits, so half a unit would be too strict for the table itself)."""
     printed = np.array([row[2] for row in TABLE_3_1])
     np.testing.assert_allclose(blend_weights(), printed, rtol=0.0, atol=1e-4)
@@ -111,7 +108,8 @@ def test_blend_weights_reproduce_table_3_1_as_printed():
     blurs=arrays(np.float64, (4, 3), elements=st.floats(0.0, 10.0)),
 )
 def test_blending_with_eq_3_4_leaves_the_normalised_sum_of_gaussians(weights, blurs):
-    """Color_out = Color_src W'_i + Color_dst (1 - W'_i) (eq. 3.4), from a cleared target, gives sum W_i b_i / sum W."""
+    """Color_out = Color_src W'_i + Color_dst (1 - W'_i) (thesis eq. 3.4), from a cleared target, gives sum W_i b_i /
+    sum W."""
     assume(np.all(weights.sum(axis=0) > 0.0))
     accumulator = np.zeros(3)
     for blur, blend in zip(blurs, blend_weights(weights), strict=True):
@@ -157,7 +155,7 @@ def test_a_uniformly_lit_card_is_unchanged_by_scattering(scene, alpha):
         camera = PerspectiveCamera(fov_y_deg=30.0, eye=(0.0, 0.0, 80.0), near=10.0, far=200.0)
         kwargs = {"mesh": meshes.card(24.0, 16.0), "camera": camera, "model": _tilted(40.0)}
         lights = [light_at(10.0)]
-    lobes = {"specular": [Specular(0.2, 1.45)]}
+    lobes = {"lobes": [Specular(0.2, 1.45)]}
     plain = skin(stack, lights, scattering=None, **lobes, **kwargs)
     blurred = skin(stack, lights, scattering=Scattering(alpha=alpha), **lobes, **kwargs)
     on_card = plain[..., 0] != BACKGROUND[0]
@@ -194,13 +192,13 @@ def _precomposed_stack():
 def test_without_scattering_the_skin_render_is_the_layer_pass(make_stack, specular):
     stack = make_stack()
     lights = [light_at(25.0), PointLight((3.0, 2.0, 40.0), (0.4, 0.5, 0.6), 40.0)]
-    common = {
-        "specular": specular, "props": [Prop(meshes.card(30.0, 30.0), (0.4, 0.4, 0.4), _lifted(-1.5))],
-        "background": BACKGROUND,
-    }  # fmt: skip
-    mesh = meshes.card(12.0, 10.0)
-    image = render_skin(mesh, CAMERA, lights, stack, SIZE, SIZE, scattering=None, **common)
-    layers = render_layers(mesh, CAMERA, lights, stack, SIZE, SIZE, substrate_specular=SKIN_SPECULAR, **common)
+    scene = Scene(
+        mesh=meshes.card(12.0, 10.0), camera=CAMERA, lights=lights, stack=stack, resolution=(SIZE, SIZE),
+        lobes=specular, substrate_lobe=SKIN_SPECULAR, scattering=None,
+        props=[Prop(meshes.card(30.0, 30.0), (0.4, 0.4, 0.4), _lifted(-1.5))], background=BACKGROUND,
+    )  # fmt: skip
+    image = render_skin(scene)
+    layers = render_layers(scene)
     assert np.ptp(layers[SIZE // 2]) > 1e-2  # the row crosses the card, the ground and the thickness map
     np.testing.assert_allclose(image, layers, rtol=1e-5, atol=1e-6)
 
@@ -211,7 +209,7 @@ def test_without_scattering_the_skin_render_is_the_layer_pass(make_stack, specul
 def test_without_makeup_skin_renders_as_its_albedo(theta_deg, lobe, scattering):
     image = skin(
         ChannelStack([], [], SKIN_ALBEDO), [light_at(theta_deg)], scattering=scattering,
-        skin_specular=SKIN_SPECULAR if lobe else None,
+        substrate_lobe=SKIN_SPECULAR if lobe else None,
     )  # fmt: skip
     np.testing.assert_allclose(image.reshape(-1, 3), np.tile(bare_skin(theta_deg, lobe), (SIZE * SIZE, 1)), rtol=1e-5)
 
@@ -264,10 +262,10 @@ def step_render(camera, card, columns: int, alpha: float, cover_r0=COVER_R0, ver
     thickness = np.zeros((2, columns))
     thickness[:, : columns // 2] = 1.0
     size = STRIP[::-1] if vertical else STRIP
-    image = render_skin(
-        card, camera, [light_at(0.0)], ChannelStack([cover], [thickness.T if vertical else thickness], SKIN_ALBEDO),
-        *size, scattering=Scattering(alpha=alpha), skin_specular=None,
-    )  # fmt: skip
+    stack = ChannelStack([cover], [thickness.T if vertical else thickness], SKIN_ALBEDO)
+    scene = Scene(mesh=card, camera=camera, lights=[light_at(0.0)], stack=stack, resolution=size,
+                  scattering=Scattering(alpha=alpha))  # fmt: skip
+    image = render_skin(scene)
     line = (image[:, size[0] // 2] if vertical else image[size[1] // 2]).astype(float)
     covered = np.arange(len(line))[:, None] < len(line) // 2
     return (line - np.where(covered, cover_r0 * RADIANCE, 0.0)) / LIT

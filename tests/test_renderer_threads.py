@@ -8,18 +8,25 @@ import threading
 import numpy as np
 
 from renderer import meshes
-from renderer.layers import ChannelStack, render_layers
-from renderer.scene import DirectionalLight, OrthographicCamera
+from renderer.layers import render_layers
+from renderer.scene import DirectionalLight, OrthographicCamera, Scattering, Scene
 from renderer.skin import render_skin
+from renderer.stack import SKIN_SPECULAR, ChannelStack
 
 
 def test_threads_rendering_at_once_get_the_images_they_would_alone():
     camera = OrthographicCamera(10.0)
     light = DirectionalLight((0.3, -0.2, -1.0), (1.0, 1.0, 1.0))
-    jobs = [
-        lambda: render_layers(meshes.sphere(8.0), camera, [light], ChannelStack([], [], [0.5, 0.4, 0.3]), 48, 48),
-        lambda: render_skin(meshes.sphere(8.0), camera, [light], ChannelStack([], [], [0.6, 0.4, 0.3]), 40, 40),
-    ]
+    sphere = {"mesh": meshes.sphere(8.0), "camera": camera, "lights": [light]}
+    layers = Scene(stack=ChannelStack([], [], [0.5, 0.4, 0.3]), resolution=(48, 48), **sphere)
+    skin = Scene(
+        stack=ChannelStack([], [], [0.6, 0.4, 0.3]),
+        resolution=(40, 40),
+        substrate_lobe=SKIN_SPECULAR,
+        scattering=Scattering(),
+        **sphere,
+    )
+    jobs = [lambda: render_layers(layers), lambda: render_skin(skin)]
     alone = [job() for job in jobs]
     results: list[tuple[int, np.ndarray]] = []
 

@@ -21,8 +21,10 @@ import pytest
 
 from kmpipe import cli
 from kmpipe.errors import InputError
+from kmpipe.formats.thresholds import Thresholds
 from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.validation.checks import Finding, Thresholds, report_to_dict, validate_material
+from kmpipe.validation.findings import Finding, report_to_dict
+from kmpipe.validation.material import validate_material
 from kmpipe.validation.report import DPI, KS_SIZE, SPECTRA_SIZE, swatch_figsize, write_index, write_sample_report
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,11 +1,11 @@
-"""``kmpipe run`` (kmpipe.run.graph, kmpipe.formats.recipe, kmpipe.cli): a product line's recipe as a graph of cached
+"""``kmpipe run`` (kmpipe.run, kmpipe.formats.recipe, kmpipe.cli): a product line's recipe as a graph of cached
 tasks.
 
 Every test builds its line in a temporary folder: a copy of the recorded CS-2000 session of F1
 (tests/data/sessions/complete.jsonl) with F1's plan, the bundled L1 and B1 samples, a small thickness map, and a
 recipe of four products (F1 replayed, L1 and B1 fitted, a face made of the three) at 32 px and 5 frames, so that
-each rendered product has two render tasks (frames 0-3 and 4). What a test expects comes from the recipe's
-structure (which product uses which material, frames per task) and from independent facts: files that parse,
+each rendered product has a plan task and two render tasks (frames 0-3 and 4). What a test expects comes from the
+recipe's structure (which product uses which material, frames per task) and from independent facts: files that parse,
 frames equal pixel for pixel between runs, never numbers the code produced.
 """
 
@@ -28,7 +28,9 @@ from PIL import Image
 
 from kmpipe import cli
 from kmpipe.formats.spectra import read_spectra_csv
-from kmpipe.run.graph import FRAMES_PER_TASK, LOCK, execute, plan_run
+from kmpipe.run.execute import execute
+from kmpipe.run.folder import LOCK
+from kmpipe.run.planning import FRAMES_PER_TASK, plan_run
 from renderer.image_io import read_exr, write_map
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,7 +108,8 @@ def material_tasks(*products: str) -> set[str]:
 
 
 def render_tasks(*products: str) -> set[str]:
-    return {f"render:{p}:{c}" for p in products for c in CHUNKS}
+    """A product's render plan and its render chunks (the plan is made again whenever a render would be)."""
+    return {f"render:{p}:{c}" for p in products for c in CHUNKS} | {f"plan:{p}" for p in products}
 
 
 ALL_TASKS = material_tasks(*MEASURED) | render_tasks(*STACKS) | {"reports", "sheet"}
@@ -528,7 +531,7 @@ def test_only_then_a_full_run_completes_the_line(tmp_path, reference):
 def test_a_sample_measured_live_is_measured_once_and_its_recording_replays_to_the_same_material(tmp_path):
     """A product measured on the (emulated) CS-2000 at the recipe's port: the run records the session; a second run
     needs no instrument (the emulator is gone); replaying the recording gives the same K and S."""
-    from instruments.cs2000.emulator import Emulator
+    from kmpipe.formats.emulator_script import emulator_from_script
     from kmpipe.formats.material import read_material
 
     folder = tmp_path / "line"
@@ -536,7 +539,7 @@ def test_a_sample_measured_live_is_measured_once_and_its_recording_replays_to_th
     shutil.copyfile(SAMPLES / "F1" / "plan.toml", folder / "plan.toml")
     recipe = folder / "recipe.toml"
     out = tmp_path / "out"
-    with Emulator.from_script(SAMPLES / "F1" / "emulator.toml", time_scale=0.01, link=tmp_path / "cs2000") as emulator:
+    with emulator_from_script(SAMPLES / "F1" / "emulator.toml", time_scale=0.01, link=tmp_path / "cs2000") as emulator:
         recipe.write_text(
             f'[line]\nname = "Live"\n\n[[product]]\nname = "F1"\nmeasure = {{ plan = "plan.toml", port = '
             f'"{emulator.link}" }}\n',

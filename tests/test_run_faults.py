@@ -1,4 +1,4 @@
-"""``kmpipe run`` (kmpipe.run.graph) against a hostile or busy output folder: symlinks leading out of it, recipe outputs
+"""``kmpipe run`` (kmpipe.run) against a hostile or busy output folder: symlinks leading out of it, recipe outputs
 that collide, a run killed part way (records, temporary files), two runs at once (the lock), bad scheduler addresses,
 damaged task records and a contact sheet too large to make.
 
@@ -21,7 +21,10 @@ from test_run import F1, FACE, L1, make_line
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.run.graph import LOCK, RECORDS, check_executor, execute, locked, plan_run, remove_tree
+from kmpipe.run.execute import execute
+from kmpipe.run.executors import check_executor
+from kmpipe.run.folder import LOCK, RECORDS, locked, remove_tree
+from kmpipe.run.planning import plan_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -46,7 +49,7 @@ name = "M"
 material = "m.json"
 layer = [{ material = "self", thickness = "1 mm" }]
 """
-TINY_TASKS = {"material:m", "render:m:0-0", "sheet"}
+TINY_TASKS = {"material:m", "plan:m", "render:m:0-0", "sheet"}
 
 
 @pytest.fixture(scope="module")
@@ -237,13 +240,15 @@ def test_each_task_is_recorded_as_it_finishes(tmp_path):
     assert again.tasks[f"material:{F1}"].state == "cached"
 
 
-TEMPORARIES = [f"frames/{FACE}/.frame_003.k2_x9qaz.png", f"frames/{FACE}/.frame_003.abcdefgh.exr",
-               f"frames/{FACE}/..frame_002.0123456789abcdef.k_3a9zq1.png",
+TEMPORARIES = [f"frames/{FACE}/.frame_003.png.a1b2c3d4e5f60718.tmp",
+               f"frames/{FACE}/.frame_003.exr.0a1b2c3d4e5f6071.tmp",
+               f"frames/{FACE}/..frame_002.exr.0123456789abcdef.tmp.0123456789abcdef.tmp",
                f"reports/{L1}/.report.html.0123456789abcdef.tmp",
                f"products/{F1}/session/.radiance.csv.fedcba9876543210.tmp",
-               ".kmpipe/tasks/.sheet.json.00112233445566ff.tmp", ".sheet.a1b2c3d4.png"]  # fmt: skip
+               ".kmpipe/tasks/.sheet.json.00112233445566ff.tmp", ".sheet.png.a1b2c3d4e5f60718.tmp"]  # fmt: skip
 KEPT = [f"frames/{FACE}/.notes.txt", f"frames/{FACE}/frame_003.png", "reports/.report.html.tmp", ".hidden.tmp",
-        "notes/.sheet.a1b2c3d4.png", f"frames/{FACE}/.frame_002.0123456789abcdef.exr",
+        "notes/.sheet.png.a1b2c3d4e5f60718.tmp", f"frames/{FACE}/.frame_002.0123456789abcdef.exr",
+        f"frames/{FACE}/.frame_003.abcdefgh.exr",
         f"products/{F1}/.material.json.tmp"]  # not names kmpipe's writers make  # fmt: skip
 
 
@@ -369,7 +374,7 @@ def test_scheduler_addresses_are_accepted(address):
 def test_a_scheduler_that_fails_becomes_bad_input(monkeypatch):
     import distributed
 
-    from kmpipe.run.graph import _Dask
+    from kmpipe.run.executors import _Dask
 
     def refuse(address, **_):
         raise ValueError(f"unexpected scheme in {address}")

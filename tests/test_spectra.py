@@ -16,18 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kmpipe.errors import InputError
-from kmpipe.formats.spectra import (
-    SpectralTable,
-    read_spectra_csv,
-    resample,
-    uniform_grid,
-    write_spectra_csv,
-)
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
+from kmpipe.formats.spectral_grid import resample, uniform_grid
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = ROOT.parent / "shared" / "data"
-# Kimera acrylic masstones, miciwan/PaintMixing data/masstone.json (MIT), see shared/data/README.md.
-KIMERA_MASSTONE = SHARED_DATA / "paints" / "kimera_masstone.json"
 
 
 def smooth(wavelength_nm: np.ndarray) -> np.ndarray:
@@ -409,14 +401,17 @@ def test_resample_between_samples_matches_the_analytic_curve():
     assert np.max(np.abs(fine.values[0] - smooth(fine.wavelengths))) < 1e-5
 
 
-def kimera() -> tuple[np.ndarray, list[dict]]:
-    entries = json.loads(KIMERA_MASSTONE.read_text(encoding="utf-8"))
+@pytest.fixture(scope="module")
+def kimera(shared_data) -> tuple[np.ndarray, list[dict]]:
+    """(wavelengths nm, entries) of the Kimera acrylic masstones: miciwan/PaintMixing data/masstone.json (MIT), in
+    the shared data folder (see its README.md)."""
+    entries = json.loads((shared_data / "paints" / "kimera_masstone.json").read_text(encoding="utf-8"))
     return np.array(entries[0]["values"], dtype=float), entries[1:]
 
 
 @pytest.mark.parametrize("method", ["auto", "pchip", "cubic"])
-def test_resample_uneven_kimera_grid_to_10_nm(method):
-    wavelengths, _ = kimera()
+def test_resample_uneven_kimera_grid_to_10_nm(kimera, method):
+    wavelengths, _ = kimera
     assert wavelengths.size == 170 and np.ptp(np.diff(wavelengths)) > 0.5  # really uneven
     source = table(wavelengths, smooth(wavelengths), quantity="reflectance")
     target = uniform_grid(390, 710, 10)
@@ -424,8 +419,8 @@ def test_resample_uneven_kimera_grid_to_10_nm(method):
     assert np.max(np.abs(result.values[0] - smooth(target))) < 1e-3
 
 
-def test_resample_real_kimera_masstones_stays_within_neighbouring_samples():
-    wavelengths, entries = kimera()
+def test_resample_real_kimera_masstones_stays_within_neighbouring_samples(kimera):
+    wavelengths, entries = kimera
     names = [f"{e['name']}_{i}" for i, e in enumerate(entries)]
     values = np.array([e["reflectance"] for e in entries]) / 100  # percent -> fraction
     source = table(wavelengths, values, names, quantity="reflectance")
@@ -447,7 +442,7 @@ def test_resample_refuses_to_extrapolate(tmp_path, grid):
     assert f"{grid[0]}-{grid[1]} nm" in message and "380-780 nm" in message and "extrapolate" in message
 
 
-def test_resample_refuses_channel_tables_bad_grids_and_bad_methods(tmp_path):
+def test_resample_refuses_channel_tables_bad_grids_and_bad_methods(kimera):
     camera = SpectralTable(None, ("R", "G", "B"), ("a",), np.array([[0.1, 0.2, 0.3]]), {})
     with pytest.raises(InputError, match="channel table"):
         resample(camera, [450, 550])
@@ -457,7 +452,7 @@ def test_resample_refuses_channel_tables_bad_grids_and_bad_methods(tmp_path):
             resample(spectrum, grid)
     with pytest.raises(InputError, match="'spline' is not one of"):
         resample(spectrum, [452.5], method="spline")
-    wavelengths, _ = kimera()
+    wavelengths, _ = kimera
     uneven = table(wavelengths, smooth(wavelengths))
     with pytest.raises(InputError, match="uniform source grid"):
         resample(uneven, [500.0], method="sprague")

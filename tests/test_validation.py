@@ -1,4 +1,4 @@
-"""Validation of fitted materials (kmpipe.validation.checks, ``kmpipe validate``) against independently known answers.
+"""Validation of fitted materials (kmpipe.validation, ``kmpipe validate``) against independently known answers.
 
 Every check is triggered by a sample simulated into a temporary folder with exactly the fault it must catch
 (the thesis's sample F2, noise that drives K below 0, an opaque film, a masstone drawn too thin, surface
@@ -15,12 +15,11 @@ opaque" masstone; both read from ``shared/data`` (see its README).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import colour
@@ -28,29 +27,20 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from simulation import FOUNDATION, Simulated, cards, rit_mixture, shared_data, simulate_sample, write_sample
 
 from kmpipe import cli
 from kmpipe.errors import InputError
-from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
-from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
-from kmpipe.physics.saunderson import saunderson_forward
-from kmpipe.validation.checks import CHECKS, MIN_NOISE, Thresholds, report_to_dict, validate_material
+from kmpipe.formats.thresholds import Thresholds
+from kmpipe.physics.kubelka_munk import reflectance_over_background
+from kmpipe.validation.checks import CHECKS
+from kmpipe.validation.findings import report_to_dict
+from kmpipe.validation.material import validate_material
+from kmpipe.validation.noise import MIN_NOISE
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
-PIGMENTS = DATA / "pigments" / "rit_golden_acrylic_ks.csv"
 # Kimera acrylic masstones, percent reflectance, 3 repeats each: miciwan/PaintMixing data/masstone.json (MIT).
-KIMERA = DATA / "paints" / "kimera_masstone.json"
-PER_MM = 60.0  # the RIT table's S is relative; x60 gives per-mm values typical of a foundation
-FOUNDATION = {
-    "TitaniumWhite": 1.0,
-    "HansaYellowOpaque": 0.3,
-    "CadmiumOrange": 0.25,
-    "PyrroleRed": 0.05,
-    "BoneBlack": 0.25,
-}
 SAUNDERSON = (0.04, 0.6)
-REFLECTANCE = {"quantity": "reflectance", "units": "1", "note": "simulated by tests/test_validation.py"}
 COLOUR_NAMES = {"D65": "D65", "A": "A", "F11": "FL11"}
 OBSERVER_NAMES = {"2": "CIE 1931 2 Degree Standard Observer", "10": "CIE 1964 10 Degree Standard Observer"}
 
@@ -62,7 +52,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:Aligning:colour.utilities.Colour
 
 
 def textbook_film(K, S, X, G):
-    """KM reflectance of a film over G (thesis eqs. 4.4 and 3.13); K, S > 0.
+    """KM reflectance of a film over G (thesis eq. 3.8, thesis eq. 3.9 and thesis eq. 3.14); K, S > 0.
 
     R0 = sinh(x) / (a sinh(x) + b cosh(x)), T = b / (a sinh(x) + b cosh(x)), x = b S X, written with
     e = exp(-x) so that thick films do not overflow: R0 = (1 - e^2) / (a + b - (a - b) e^2),
@@ -134,132 +124,6 @@ def delta_e_2000(R1, R2, wavelengths, illuminant: str, observer: str) -> float:
 
 
 # --- simulated samples --------------------------------------------------------------------------------------
-
-
-def rit(mix: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(wavelengths nm, K 1/mm, S 1/mm) of a Duncan mixture of RIT pigments, 380-750 nm every 10 nm."""
-    with open(PIGMENTS, encoding="utf-8") as handle:
-        rows = list(csv.reader(line for line in handle if not line.startswith("#")))
-    grid = np.array([float(v) for v in rows[0][3:]])
-    table: dict[str, dict[str, np.ndarray]] = {}
-    for row in rows[1:]:
-        table.setdefault(row[0], {})[row[2]] = np.array([float(v) for v in row[3:]])
-    K = PER_MM * sum(c * table[p]["K"] for p, c in mix.items())
-    S = PER_MM * sum(c * table[p]["S"] for p, c in mix.items())
-    return grid, K, S
-
-
-def cards(wavelengths: np.ndarray) -> dict[str, np.ndarray]:
-    """A black (~0.035) and a white (~0.85) drawdown card."""
-    x = (wavelengths - 380.0) / 400.0
-    return {"black": 0.035 + 0.006 * x, "white": 0.85 - 0.05 * np.exp(-(wavelengths - 380.0) / 60.0)}
-
-
-@dataclass
-class Simulated:
-    """A sample as written: its manifest, the card and reading columns, and what each entry is."""
-
-    manifest: Path
-    wavelengths: np.ndarray
-    cards: dict[str, np.ndarray]
-    columns: dict[str, np.ndarray]
-    entries: list[dict] = field(default_factory=list)  # role, column, over, thickness_mm (inf for a masstone)
-
-    @property
-    def folder(self) -> Path:
-        return self.manifest.parent
-
-    def group(self, role: str, over: str | None = None, um: float | None = None) -> list[str]:
-        return [
-            e["column"]
-            for e in self.entries
-            if e["role"] == role and e["over"] == over and (um is None or math.isclose(e["thickness_mm"], um / 1000.0))
-        ]
-
-
-def write_sample(
-    folder: Path,
-    wavelengths,
-    card_values: dict,
-    columns: dict,
-    entries: list[dict],
-    *,
-    name: str = "T",
-    masstone_thickness: str | None = None,
-) -> Simulated:
-    """cards.csv, readings.csv and manifest.toml (reflectance, no [white]) in ``folder``."""
-    folder.mkdir(parents=True, exist_ok=True)
-    write_spectra_csv(
-        SpectralTable(wavelengths, None, tuple(card_values), np.array(list(card_values.values())), REFLECTANCE),
-        folder / "cards.csv",
-    )
-    write_spectra_csv(
-        SpectralTable(wavelengths, None, tuple(columns), np.array(list(columns.values())), REFLECTANCE),
-        folder / "readings.csv",
-    )
-    text = f'# SIMULATED by tests/test_validation.py\n[sample]\nname = "{name}"\nproduct = "simulated"\n'
-    for card in card_values:
-        text += f'\n[[backing]]\nname = "{card}"\nfile = "cards.csv"\ncolumn = "{card}"\n'
-    for e in entries:
-        if e["role"] == "masstone":
-            text += f'\n[[masstone]]\nfile = "readings.csv"\ncolumn = "{e["column"]}"\n'
-            if masstone_thickness is not None:
-                text += f'thickness = "{masstone_thickness}"\n'
-    for e in entries:
-        if e["role"] == "film":
-            text += (
-                f'\n[[film]]\nfile = "readings.csv"\ncolumn = "{e["column"]}"\nover = "{e["over"]}"\n'
-                f'thickness = "{e["thickness_mm"] * 1000:g} um"\n'
-            )
-    manifest = folder / "manifest.toml"
-    manifest.write_text(text, encoding="utf-8")
-    return Simulated(manifest, np.asarray(wavelengths), dict(card_values), dict(columns), list(entries))
-
-
-def simulate(
-    folder: Path,
-    wavelengths,
-    K,
-    S,
-    *,
-    thicknesses_um=(15, 30),
-    repeats: int = 1,
-    masstones: int = 1,
-    noise: float = 0.0,
-    seed: int = 0,
-    saunderson=None,
-    edit=None,
-    name: str = "T",
-    masstone_thickness: str | None = None,
-) -> Simulated:
-    """Films of each thickness over black and white (``repeats`` columns each) and masstones, from K and S.
-
-    Readings are KM reflectances (Saunderson surface reflection added to films, masstones and cards alike
-    when given) plus Gaussian noise on the films and masstones; ``edit(columns, wavelengths)`` may then
-    change readings in place (the fault under test).
-    """
-    card_values = cards(wavelengths)
-    columns, entries = {}, []
-    for r in range(masstones):
-        columns[f"masstone_{r + 1}"] = reflectance_infinite(K, S)
-        entries.append({"role": "masstone", "column": f"masstone_{r + 1}", "over": None, "thickness_mm": math.inf})
-    for um in thicknesses_um:
-        for over in ("black", "white"):
-            for r in range(repeats):
-                column = f"film_{um:g}um_{over}_{r + 1}"
-                columns[column] = reflectance_over_background(K, S, um / 1000.0, card_values[over])
-                entries.append({"role": "film", "column": column, "over": over, "thickness_mm": um / 1000.0})
-    if saunderson is not None:
-        columns = {k: saunderson_forward(v, *saunderson) for k, v in columns.items()}
-        card_values = {k: saunderson_forward(v, *saunderson) for k, v in card_values.items()}
-    if noise:
-        rng = np.random.default_rng(seed)
-        columns = {k: v + rng.normal(0.0, noise, v.shape) for k, v in columns.items()}
-    if edit is not None:
-        edit(columns, np.asarray(wavelengths))
-    return write_sample(
-        folder, wavelengths, card_values, columns, entries, name=name, masstone_thickness=masstone_thickness
-    )
 
 
 def fit(manifest: Path, out: Path, *options: str) -> Path:
@@ -358,7 +222,7 @@ def make_case(tmp_path_factory, label: str, build, *fit_options: str, **validate
 
 @pytest.fixture(scope="module")
 def foundation():
-    return rit(FOUNDATION)
+    return rit_mixture(FOUNDATION)
 
 
 @pytest.fixture(scope="module")
@@ -368,7 +232,7 @@ def clean(tmp_path_factory, foundation):
     return make_case(
         tmp_path_factory,
         "clean",
-        lambda f: simulate(f, wl, K, S, repeats=3, masstones=3, noise=0.001, seed=11, name="clean"),
+        lambda f: simulate_sample(f, wl, K, S, repeats=3, masstones=3, noise=0.001, rng=11, name="clean"),
         illuminants=("D65", "A", "F11"),
     )
 
@@ -393,7 +257,7 @@ def f2(tmp_path_factory, foundation):
     return make_case(
         tmp_path_factory,
         "f2",
-        lambda f: simulate(
+        lambda f: simulate_sample(
             f,
             wl,
             K,
@@ -402,7 +266,7 @@ def f2(tmp_path_factory, foundation):
             repeats=3,
             masstones=3,
             noise=0.001,
-            seed=2,
+            rng=2,
             edit=uneven,
             name="F2like",
         ),
@@ -412,11 +276,11 @@ def f2(tmp_path_factory, foundation):
 @pytest.fixture(scope="module")
 def white(tmp_path_factory):
     """A nearly non-absorbing white (RIT titanium white), one 30 um film over each card, noise 0.003."""
-    wl, K, S = rit({"TitaniumWhite": 1.0})
+    wl, K, S = rit_mixture({"TitaniumWhite": 1.0})
     return make_case(
         tmp_path_factory,
         "white",
-        lambda f: simulate(f, wl, K, S, thicknesses_um=(30,), masstones=0, noise=0.003, seed=5, name="white"),
+        lambda f: simulate_sample(f, wl, K, S, thicknesses_um=(30,), masstones=0, noise=0.003, rng=5, name="white"),
         "--method",
         "black-white",
     )
@@ -427,7 +291,7 @@ def opaque(tmp_path_factory, foundation):
     """Films of 2 and 5 mm hide both cards."""
     wl, K, S = foundation
     return make_case(
-        tmp_path_factory, "opaque", lambda f: simulate(f, wl, K, S, thicknesses_um=(2000, 5000), name="opaque")
+        tmp_path_factory, "opaque", lambda f: simulate_sample(f, wl, K, S, thicknesses_um=(2000, 5000), name="opaque")
     )
 
 
@@ -438,7 +302,7 @@ def saunderson(tmp_path_factory, foundation):
     return make_case(
         tmp_path_factory,
         "saunderson",
-        lambda f: simulate(f, wl, K, S, saunderson=SAUNDERSON, name="surface"),
+        lambda f: simulate_sample(f, wl, K, S, saunderson=SAUNDERSON, name="surface"),
         illuminants=("D65", "A", "F11"),
     )
 
@@ -456,7 +320,7 @@ def biased(tmp_path_factory, foundation):
     return make_case(
         tmp_path_factory,
         "biased",
-        lambda f: simulate(f, wl, K, S, repeats=3, noise=0.0005, seed=8, edit=bias, name="biased"),
+        lambda f: simulate_sample(f, wl, K, S, repeats=3, noise=0.0005, rng=8, edit=bias, name="biased"),
     )
 
 
@@ -471,15 +335,15 @@ def bright(tmp_path_factory, foundation):
     def spike(columns, wavelengths):
         columns["film_15um_white_1"] = np.where(wavelengths == BRIGHT_AT, 1.2, columns["film_15um_white_1"])
 
-    return make_case(tmp_path_factory, "bright", lambda f: simulate(f, wl, K, S, edit=spike, name="bright"))
+    return make_case(tmp_path_factory, "bright", lambda f: simulate_sample(f, wl, K, S, edit=spike, name="bright"))
 
 
 @pytest.fixture(scope="module")
 def black(tmp_path_factory):
     """A near-black: RIT bone black with 20 times its absorption (K/S about 170-260), films of 3 and 6 um."""
-    wl, K, S = rit({"BoneBlack": 1.0})
+    wl, K, S = rit_mixture({"BoneBlack": 1.0})
     return make_case(
-        tmp_path_factory, "black", lambda f: simulate(f, wl, 20.0 * K, S, thicknesses_um=(3, 6), name="black")
+        tmp_path_factory, "black", lambda f: simulate_sample(f, wl, 20.0 * K, S, thicknesses_um=(3, 6), name="black")
     )
 
 
@@ -490,7 +354,7 @@ def thick(tmp_path_factory, foundation):
     return make_case(
         tmp_path_factory,
         "thick",
-        lambda f: simulate(f, wl, K, S, thicknesses_um=(60, 90), noise=0.003, seed=1, name="thick"),
+        lambda f: simulate_sample(f, wl, K, S, thicknesses_um=(60, 90), noise=0.003, rng=1, name="thick"),
     )
 
 
@@ -503,7 +367,7 @@ def kimera_sample(folder: Path, paint: str, masstone_thickness: str) -> Simulate
     simulated from K, S consistent with them: K/S = (1 - R)^2 / (2 R) of the repeats' mean, S of RIT Hansa
     Yellow Opaque (x60 per mm), K = K/S x S."""
     # Source: miciwan/PaintMixing data/masstone.json (MIT), via shared/data/paints/kimera_masstone.json.
-    entries_in = json.loads(KIMERA.read_text(encoding="utf-8"))
+    entries_in = json.loads((shared_data() / "paints" / "kimera_masstone.json").read_text(encoding="utf-8"))
     source_grid = np.array(entries_in[0]["values"], dtype=np.float64)
     repeats = [
         np.interp(KIMERA_GRID, source_grid, np.array(e["reflectance"]) / 100.0)
@@ -512,7 +376,7 @@ def kimera_sample(folder: Path, paint: str, masstone_thickness: str) -> Simulate
     ]
     assert len(repeats) == 3
     R = np.mean(repeats, axis=0)
-    rit_grid, _, S_rit = rit({"HansaYellowOpaque": 1.0})
+    rit_grid, _, S_rit = rit_mixture({"HansaYellowOpaque": 1.0})
     S = np.interp(KIMERA_GRID, rit_grid, S_rit)
     K = (1.0 - R) ** 2 / (2.0 * R) * S
     card_values = cards(KIMERA_GRID)
@@ -796,7 +660,7 @@ def rewrite_value(path: Path, column: str, row: int, delta: float) -> None:
 
 def test_measurement_file_changed_after_the_fit_warns(tmp_path, foundation):
     wl, K, S = foundation
-    sim = simulate(tmp_path / "sample", wl, K, S, repeats=2, masstones=2, noise=0.001, seed=4, name="edited")
+    sim = simulate_sample(tmp_path / "sample", wl, K, S, repeats=2, masstones=2, noise=0.001, rng=4, name="edited")
     out = fit(sim.manifest, tmp_path / "edited.json")
     before = validate_material(out)
     assert "inputs_changed" not in codes(before)
@@ -1113,9 +977,9 @@ def test_validate_a_folder_of_materials(capsys, tmp_path, foundation):
     """A product line: three samples fitted into one folder, validated together."""
     wl, K, S = foundation
     manifests = [
-        simulate(tmp_path / "a", wl, K, S, repeats=2, masstones=2, noise=0.001, seed=21, name="shade-a").manifest,
-        simulate(tmp_path / "b", wl, K, S, thicknesses_um=(2000, 5000), name="shade-b").manifest,
-        simulate(
+        simulate_sample(tmp_path / "a", wl, K, S, repeats=2, masstones=2, noise=0.001, rng=21, name="shade-a").manifest,
+        simulate_sample(tmp_path / "b", wl, K, S, thicknesses_um=(2000, 5000), name="shade-b").manifest,
+        simulate_sample(
             tmp_path / "c",
             wl,
             K,
@@ -1160,7 +1024,7 @@ def test_thickness_series_of_single_readings_like_thesis_f2_fails(tmp_path, foun
         band = (wavelengths >= F2_LOW) & (wavelengths <= F2_HIGH)
         columns["film_30um_black_1"] = np.where(band, 0.85 * columns["film_30um_black_1"], columns["film_30um_black_1"])
 
-    sim = simulate(tmp_path / "s", wl, K, S, noise=0.001, seed=2, edit=uneven, name="F2single")
+    sim = simulate_sample(tmp_path / "s", wl, K, S, noise=0.001, rng=2, edit=uneven, name="F2single")
     band = (wl >= F2_LOW) & (wl <= F2_HIGH)
     darker = sim.columns["film_30um_black_1"] - sim.columns["film_15um_black_1"]
     assert np.all(darker[band] < -0.025) and np.all(darker[~band] > 0.0)
@@ -1178,9 +1042,9 @@ def test_noise_free_readings_of_a_sound_sample_do_not_fail(tmp_path, foundation,
     """
     wl, K, S = foundation
     if fault == "opaque-films":
-        sim = simulate(tmp_path / "s", wl, K, S, thicknesses_um=(2000, 5000), repeats=2, name="nf")
+        sim = simulate_sample(tmp_path / "s", wl, K, S, thicknesses_um=(2000, 5000), repeats=2, name="nf")
     else:
-        sim = simulate(tmp_path / "s", wl, K, S, repeats=2, masstones=2, masstone_thickness="5 mm", name="nf")
+        sim = simulate_sample(tmp_path / "s", wl, K, S, repeats=2, masstones=2, masstone_thickness="5 mm", name="nf")
     report = validate_material(fit(sim.manifest, tmp_path / "m.json"))
     assert report.noise_sigma == MIN_NOISE and report.noise_source.endswith(f"floored at {MIN_NOISE:g}")
     assert report.verdict != "fail", [f.message for f in report.findings]
@@ -1193,8 +1057,8 @@ def test_thickness_series_with_surface_reflection_and_no_masstone(tmp_path):
     Over the white card a thicker film must read darker where the measured R_inf is below the card (400-490
     nm: about 0.3-0.6 against 0.81-0.84), and does.
     """
-    wl, K, S = rit({"TitaniumWhite": 1.0, "HansaYellowOpaque": 0.02})
-    sim = simulate(
+    wl, K, S = rit_mixture({"TitaniumWhite": 1.0, "HansaYellowOpaque": 0.02})
+    sim = simulate_sample(
         tmp_path / "s",
         wl,
         K,
@@ -1203,7 +1067,7 @@ def test_thickness_series_with_surface_reflection_and_no_masstone(tmp_path):
         repeats=2,
         masstones=0,
         noise=0.0005,
-        seed=1,
+        rng=1,
         saunderson=SAUNDERSON,
         name="pale",
     )

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from kmpipe.errors import InputError
-from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, uniform_grid, write_spectra_csv
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
+from kmpipe.formats.spectral_grid import uniform_grid
 from kmpipe.physics.white import (
     ReadingSource,
     baso4_typical,

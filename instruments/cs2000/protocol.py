@@ -6,7 +6,7 @@ replies (:func:`format_reply`, :func:`format_decimal_spectral`, :func:`format_co
 port and calls these functions; nothing here blocks, sleeps or touches a file.
 
 Reference: Konica Minolta, *CS-2000/CS-2000A Communication Specifications*, Rev. 7.00 (2020), as summarised in
-``/work/shared/instruments/cs2000-protocol.md``; behaviour marked *inferred* there is tolerated here.
+``../shared/instruments/cs2000-protocol.md``; behaviour marked *inferred* there is tolerated here.
 
 Exceptions
 ----------

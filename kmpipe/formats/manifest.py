@@ -16,8 +16,15 @@ from pydantic import AfterValidator, Field, ValidationError, field_validator, mo
 
 from kmpipe.errors import InputError
 from kmpipe.formats import files
-from kmpipe.formats.spectra import uniform_grid
-from kmpipe.formats.toml_input import StrictModel, first_validation_error, format_field, read_toml, toml_line
+from kmpipe.formats.spectral_grid import uniform_grid
+from kmpipe.formats.toml_input import (
+    StrictModel,
+    field_line,
+    first_validation_error,
+    format_field,
+    read_toml,
+    toml_line,
+)
 
 METHODS = ("two-constant", "black-white", "lsq")
 #: Thickest film a TOML format may give (mm): far beyond any drawdown, small enough that (K X)^2 stays finite for
@@ -190,6 +197,19 @@ class Manifest(StrictModel):
                 raise _LocatedError(("film", i, "over"), f"names backing {film.over!r}, but the backings are: {known}")
         return self
 
+    def references(self) -> list[tuple[str, ColumnRef]]:
+        """The CSV columns the manifest names, by field (``white``, ``white.dark``, ``backing[1]``, ...,
+        ``masstone[1]``, ..., ``film[1]``, ...), in the order a sample is read."""
+        refs: list[tuple[str, ColumnRef]] = []
+        if self.white is not None:
+            refs.append(("white", self.white))
+            if self.white.dark is not None:
+                refs.append(("white.dark", self.white.dark))
+        refs += [(f"backing[{i + 1}]", b) for i, b in enumerate(self.backing)]
+        refs += [(f"masstone[{i + 1}]", m) for i, m in enumerate(self.masstone)]
+        refs += [(f"film[{i + 1}]", f) for i, f in enumerate(self.film)]
+        return refs
+
 
 class _LocatedError(ValueError):
     """A cross-field error that knows which field it belongs to."""
@@ -201,7 +221,14 @@ class _LocatedError(ValueError):
 
 
 def load_manifest(path: str | Path) -> Manifest:
-    """Read and validate a sample manifest; InputError (file, line, field) on any problem."""
+    """Read and validate a sample manifest; InputError (file, line, field) on any problem.
+
+    >>> import kmpipe, pathlib
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> manifest = load_manifest(F1 / "manifest.toml")
+    >>> manifest.sample.name, [b.name for b in manifest.backing], len(manifest.film), manifest.fit.method
+    ('F1', ['black', 'white'], 4, 'lsq')
+    """
     path = Path(path)
     text, data = read_toml(path, "sample manifest")
     try:
@@ -221,3 +248,39 @@ def load_manifest(path: str | Path) -> Manifest:
         more = len(err.errors()) - 1
         suffix = f" ({more} more problem{'s' if more > 1 else ''} after this one)" if more else ""
         raise InputError(message + suffix, path=path, line=toml_line(text, loc), field=format_field(loc)) from None
+
+
+def manifest_files(path: str | Path, manifest: Manifest | None = None) -> tuple[Path, ...]:
+    r"""Every file a fit of the manifest at ``path`` reads, without reading any data: the manifest (resolved), then
+    each CSV it names once, in the order they are read, then the white standard's certificate when it is a file.
+
+    This is the list a cache hashes (``kmpipe run``) and a material's provenance records. ``manifest``: the already
+    validated manifest, to save reading it again.
+
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (folder / "m.toml").write_text(
+    ...     '[sample]\nname = "F1"\n[[backing]]\nname = "black"\nfile = "cards.csv"\ncolumn = "black"\n'
+    ...     '[[film]]\nfile = "films.csv"\ncolumn = "f1"\nover = "black"\nthickness = "30 um"\n')
+    >>> [p.name for p in manifest_files(folder / "m.toml")]
+    ['m.toml', 'cards.csv', 'films.csv']
+    """
+    from kmpipe.physics.white import BUILTIN_BASO4, certified_file
+
+    path = Path(path)
+    manifest = manifest if manifest is not None else load_manifest(path)
+    found = [path.resolve()]
+    for _, ref in manifest.references():
+        data = (path.parent / ref.file).resolve()
+        if data not in found:
+            found.append(data)
+    spec = None if manifest.white is None else manifest.white.certified
+    if spec is not None and spec != BUILTIN_BASO4:
+        try:
+            certificate = certified_file(spec, path.parent)[0].resolve()
+        except InputError as err:
+            raise InputError(err.message, path=path, line=field_line(path, "white.certified"),
+                             field="white.certified") from None  # fmt: skip
+        if certificate not in found:
+            found.append(certificate)
+    return tuple(found)

@@ -20,6 +20,7 @@ from kmpipe.formats.files import name_problem
 from kmpipe.physics.flags import Flag, wavelengths_by_flag
 
 FORMAT = "kmpipe-material/1"
+#: The K/S convention a material states (thesis eq. 3.7; the radiative-transfer one has 4 R_inf).
 KS_CONVENTION = "Kubelka-Munk: K/S = (1 - R_inf)^2 / (2 R_inf)"
 #: Largest K or S a material may hold (1/mm): one absorption or scattering event per nm of film, far beyond any
 #: pigment film, and small enough that the forward model's products (K X)^2 stay finite.
@@ -140,6 +141,18 @@ def write_material(material: Material, path: str | Path) -> None:
     The document is checked as :func:`read_material` checks it before anything is written, so a material that
     could not be read back (a non-finite or out-of-range K or S, a residual that is not finite) is an InputError
     naming the output file and the field, and no file is written.
+
+    >>> import kmpipe, pathlib, tempfile, numpy as np
+    >>> from kmpipe.formats.sample import load_sample
+    >>> from kmpipe.stages.fit import fit_sample
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> sample = load_sample(F1 / "manifest.toml")
+    >>> material = fit_sample(sample, method="black-white")
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "F1.json"
+    >>> write_material(material, path)
+    >>> again = read_material(path)
+    >>> again.name, bool(np.array_equal(again.K, material.K) and np.array_equal(again.S, material.S))
+    ('F1', True)
     """
     path = Path(path)
     document = material_to_dict(material)
@@ -161,6 +174,15 @@ def read_material(path: str | Path) -> Material:
     problem: a file that is not a regular file of at most ``files.LIMITS["material"]`` bytes, not UTF-8 JSON
     (``NaN`` and ``Infinity`` included), nested deeper than JSON parsing allows, or a document that breaks a rule
     of docs/formats.md ("Material JSON"): every field is checked for its type and range where it is read.
+
+    >>> import pathlib, tempfile
+    >>> broken = pathlib.Path(tempfile.mkdtemp()) / "broken.json"
+    >>> _ = broken.write_text('{"format": "kmpipe-material/1", "K": [NaN]}')
+    >>> try:
+    ...     read_material(broken)
+    ... except InputError as err:
+    ...     print(err.message)
+    not valid JSON: NaN is not a JSON number (JSON has no NaN or Infinity)
     """
     path = Path(path)
     text = files.read_text(path, "material")

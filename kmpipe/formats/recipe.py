@@ -28,8 +28,8 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from kmpipe.errors import InputError
 from kmpipe.formats.files import UNLIMITED, regular_file
 from kmpipe.formats.scene import MAX_LAYERS, RenderSettings, SceneFile
+from kmpipe.formats.thresholds import Thresholds
 from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
-from kmpipe.validation.checks import Thresholds
 
 #: The material of the product itself, in its layer stack.
 SELF = "self"
@@ -222,7 +222,7 @@ class Recipe:
 def inside(out_dir: Path, relative: str, where: dict) -> Path:
     """``out_dir / relative`` with its ``.`` and ``..`` taken out, refused (InputError at ``where``) if ``relative``
     is absolute or climbs out of ``out_dir``. This is the recipe's text; symlinks in the output folder are checked
-    where the run writes (:mod:`kmpipe.run.graph`)."""
+    where the run writes (:mod:`kmpipe.run.planning`)."""
     normal = os.path.normpath(relative)
     if Path(relative).is_absolute() or normal == os.pardir or normal.startswith(os.pardir + os.sep):
         raise InputError(f"{relative!r} would write outside the output folder; give a path inside it", **where)
@@ -230,7 +230,13 @@ def inside(out_dir: Path, relative: str, where: dict) -> Path:
 
 
 def load_recipe(path: str | Path) -> Recipe:
-    """Read and check a recipe: fields, product references, input files and each product's scene."""
+    """Read and check a recipe: fields, product references, input files and each product's scene.
+
+    >>> import kmpipe, pathlib
+    >>> recipe = load_recipe(pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "demo" / "recipe.toml")
+    >>> [(product.name, product.source) for product in recipe.info.product][:2]
+    [('Lipstick Classic Red', 'replay'), ('Lipstick Berry', 'replay')]
+    """
     path = Path(path)
     text, data = read_toml(path, "recipe")
     try:

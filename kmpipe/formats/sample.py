@@ -14,8 +14,9 @@ import numpy as np
 
 from kmpipe.errors import InputError
 from kmpipe.formats.files import regular_file
-from kmpipe.formats.manifest import FitSettings, Manifest, load_manifest, parse_grid
-from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, resample, uniform_grid
+from kmpipe.formats.manifest import FitSettings, Manifest, load_manifest, manifest_files, parse_grid
+from kmpipe.formats.spectra import SpectralTable, read_spectra_csv
+from kmpipe.formats.spectral_grid import resample, uniform_grid
 from kmpipe.formats.toml_input import field_line
 from kmpipe.physics.white import ReadingSource, certified_reflectance, radiance_to_reflectance
 
@@ -62,7 +63,7 @@ class Sample:
     readings: np.ndarray  # (m, n) reflectance as measured (surface reflection included)
     backings: dict[str, np.ndarray]  # name -> (n,) measured reflectance of the bare backing
     settings: FitSettings
-    inputs: tuple[Path, ...]  # every file read, manifest first
+    inputs: tuple[Path, ...]  # every file read, manifest first (manifest_files)
 
     @property
     def labels(self) -> list:
@@ -176,6 +177,14 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
     grid
         'START:STOP:STEP' in nm, or the wavelengths themselves (nm), overriding the manifest's ``[fit]
         grid``; default: see :func:`_fitting_grid`.
+
+    >>> import kmpipe, pathlib
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> sample = load_sample(F1 / "manifest.toml")
+    >>> sample.name, sample.readings.shape, [m.role for m in sample.measurements]
+    ('F1', (5, 81), ['masstone', 'film', 'film', 'film', 'film'])
+    >>> [path.name for path in sample.inputs]
+    ['manifest.toml', 'white.csv', 'backings.csv', 'F1.csv']
     """
     manifest_path = Path(manifest_path)
     manifest: Manifest = load_manifest(manifest_path)
@@ -183,15 +192,7 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
     quantity = "radiance" if manifest.white is not None else "reflectance"
     tables = _Tables(base, manifest_path, quantity)
 
-    refs: list[tuple[str, object]] = []
-    refs += [(f"backing[{i + 1}]", b) for i, b in enumerate(manifest.backing)]
-    refs += [(f"masstone[{i + 1}]", m) for i, m in enumerate(manifest.masstone)]
-    refs += [(f"film[{i + 1}]", f) for i, f in enumerate(manifest.film)]
-    if manifest.white is not None:
-        refs.insert(0, ("white", manifest.white))
-        if manifest.white.dark is not None:
-            refs.insert(1, ("white.dark", manifest.white.dark))
-    loaded = [(field, ref, *tables.get(ref, field)) for field, ref in refs]
+    loaded = [(field, ref, *tables.get(ref, field)) for field, ref in manifest.references()]
     first = loaded[0][2]
     fit_grid = _fitting_grid(manifest.fit, first, grid, manifest_path)
     on_grid = {path: _on_grid(table, fit_grid, first.channels) for _, _, table, path in loaded}
@@ -269,10 +270,6 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
             )
             readings.append(reflectance(ref, path))
 
-    inputs = [manifest_path.resolve()]
-    for _, _, _, path in loaded:
-        if path not in inputs:
-            inputs.append(path)
     return Sample(
         name=manifest.sample.name,
         product=manifest.sample.product,
@@ -284,5 +281,5 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
         readings=np.array(readings),
         backings=backings,
         settings=manifest.fit,
-        inputs=tuple(inputs),
+        inputs=manifest_files(manifest_path, manifest),
     )

@@ -35,9 +35,9 @@ from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read
 from kmpipe.physics.colorimetry import illuminant_key
 from kmpipe.physics.optical_tables import parse_mode
 
-#: Most films in one stack (the layer pass's limit, renderer.layers.MAX_LAYERS).
+#: Most films in one stack (the layer pass's limit, renderer.stack.MAX_LAYERS).
 MAX_LAYERS = 4
-#: Most lights in one scene (renderer.layers.MAX_LIGHTS).
+#: Most lights in one scene (renderer.scene.MAX_LIGHTS).
 MAX_LIGHTS = 4
 #: Built-in meshes by name.
 BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact", "head", "cylinder")
@@ -72,8 +72,8 @@ class RenderSettings(StrictModel):
     @field_validator("mode")
     @classmethod
     def _known_mode(cls, value: str | None) -> str | None:
-        """'rgb', 'exact' or 'bands:N' with N at most the layer pass's channels (renderer.layers.MAX_CHANNELS)."""
-        from renderer.layers import MAX_CHANNELS
+        """'rgb', 'exact' or 'bands:N' with N at most the layer pass's channels (renderer.stack.MAX_CHANNELS)."""
+        from renderer.stack import MAX_CHANNELS
 
         if value is not None:
             kind, n_bands = parse_mode(value)
@@ -286,7 +286,8 @@ class Scene:
 
 def _reflectance(value: float | str, wavelengths: np.ndarray, base: Path, where: dict) -> np.ndarray:
     """A flat reflectance, a ColorChecker patch or a spectral CSV column, on ``wavelengths`` (nm)."""
-    from kmpipe.formats.spectra import read_spectra_csv, resample
+    from kmpipe.formats.spectra import read_spectra_csv
+    from kmpipe.formats.spectral_grid import resample
 
     if not isinstance(value, str):
         return np.full(len(wavelengths), float(value))
@@ -349,7 +350,22 @@ Locator = Callable[[tuple], dict]
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read and check a scene file, its materials and its mesh; InputError naming the file, line and field."""
+    r"""Read and check a scene file, its materials and its mesh; InputError naming the file, line and field.
+
+    >>> import kmpipe, pathlib, tempfile
+    >>> from kmpipe.stages.fit import fit_manifests
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = fit_manifests([F1 / "manifest.toml"], folder / "F1.json", method="black-white")
+    >>> _ = (folder / "scene.toml").write_text(
+    ...     '[scene]\nname = "F1 on a card"\nmesh = "card"\nresolution = [64, 64]\n'
+    ...     '[substrate]\nreflectance = 0.8\n'
+    ...     '[[layer]]\nmaterial = "F1.json"\nthickness = "30 um"\n'
+    ...     '[[light]]\ndirection = [0, 0, 1]\n')
+    >>> scene = load_scene(folder / "scene.toml")
+    >>> scene.name, [m.name for m in scene.materials], scene.thicknesses_mm, [p.name for p in scene.inputs]
+    ('F1 on a card', ['F1'], (0.03,), ['scene.toml', 'F1.json'])
+    """
     path = Path(path)
     text, data = read_toml(path, "scene file")
     return build_scene(data, path, path.parent, located_in(path, text))
@@ -426,10 +442,13 @@ def _inputs(info: SceneFile, path: Path, base: Path) -> tuple[Path, ...]:
 
 def referenced_files(info: SceneFile, base: Path) -> list[Path]:
     """The files a scene reads besides its materials, relative names resolved against ``base``: thickness maps, a
-    mesh file, an albedo texture, a reflectance CSV (what a render's cache key must hash)."""
+    mesh file (and a glTF's buffers and images, :func:`renderer.products.mesh_files`), an albedo texture, a
+    reflectance CSV (what a render's cache key must hash)."""
+    from renderer.products import mesh_files
+
     found = [base / layer.thickness_map.file for layer in info.layer if layer.thickness_map is not None]
     if info.scene.mesh not in BUILTIN_MESHES:
-        found.append(base / info.scene.mesh)
+        found += mesh_files(base / info.scene.mesh)
     if info.base.albedo_texture is not None:
         found.append(base / info.base.albedo_texture)
     if isinstance(info.base.reflectance, str) and not info.base.reflectance.startswith("colorchecker:"):

@@ -63,7 +63,9 @@ def reflectance_to_XYZ(reflectance, wavelengths, illuminant: str = "D65", observ
     """Tristimulus values (Y = 100 for the perfect white) of reflectance spectra, shape (..., 3).
 
     X = k sum R(l) S(l) xbar(l), k = 100 / sum S(l) ybar(l) (ASTM E308 weighting), by
-    ``colour.msds_to_XYZ(method="Integration")`` on the spectra's grid.
+    ``colour.msds_to_XYZ(method="Integration")`` on the spectra's grid. This is thesis eq. A.1, thesis eq. A.2 and
+    thesis eq. A.3 weighted by the illuminant S(l): the thesis integrates R(l) xbar(l) alone (illuminant E,
+    unnormalised).
     """
     R = np.asarray(reflectance, dtype=np.float64)
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
@@ -83,14 +85,25 @@ def white_XYZ(wavelengths, illuminant: str = "D65", observer: str = "2") -> np.n
 
 
 def reflectance_to_Lab(reflectance, wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
-    """CIELAB of reflectance spectra relative to the perfect white under the same illuminant and grid."""
+    """CIELAB of reflectance spectra relative to the perfect white under the same illuminant and grid.
+
+    >>> import numpy as np
+    >>> wavelengths = np.arange(380.0, 781.0, 5.0)
+    >>> reflectance_to_Lab(np.ones_like(wavelengths), wavelengths, "D65").round(6).tolist()  # the perfect white
+    [100.0, 0.0, 0.0]
+    """
     XYZ = reflectance_to_XYZ(reflectance, wavelengths, illuminant, observer)
     white = white_XYZ(wavelengths, illuminant, observer)
     return colour.XYZ_to_Lab(XYZ / 100.0, colour.XYZ_to_xy(white / 100.0))
 
 
 def delta_E_2000(Lab_1, Lab_2) -> np.ndarray:
-    """CIE Delta E 2000 (CIE 142-2001) between two CIELAB arrays."""
+    """CIE Delta E 2000 (CIE 142-2001) between two CIELAB arrays.
+
+    >>> # Sharma, Wu and Dalal (2005), test data pair 1: Delta E 2000 = 2.0425
+    >>> round(float(delta_E_2000([50.0, 2.6772, -79.7751], [50.0, 0.0, -82.7485])), 4)
+    2.0425
+    """
     return np.asarray(colour.delta_E(Lab_1, Lab_2, method="CIE 2000"))
 
 

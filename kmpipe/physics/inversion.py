@@ -69,8 +69,8 @@ def _log1pc(d: np.ndarray) -> np.ndarray:
 def _opaque_lower_bound_sx(ks, R_g_dark, R_g_light, tolerance: float) -> np.ndarray:
     """Smallest S X at which a film of this K/S over the two backgrounds reaches contrast 1 - tolerance.
 
-    Over a background G a film reads R = (G + p (1 - G a)) / (1 + p (a - G)) with p = 1 / v,
-    v = b coth(b S X), so p rises from 0 (X = 0) to 1/b (opaque). Contrast R_dark / R_light = rho
+    Over a background G a film reads R = (G + p (1 - G a)) / (1 + p (a - G)) (thesis eq. 3.5 divided by v) with
+    p = 1 / v, v = b coth(b S X), so p rises from 0 (X = 0) to 1/b (opaque). Contrast R_dark / R_light = rho
     = 1 - tolerance is the quadratic C2 p^2 + C1 p + C0 = 0 with C0 = G_d - rho G_l < 0 (the backgrounds
     do not yet meet the contrast), C1 = (1 - rho)(1 - G_d G_l) > 0 and C2 = a (1 - rho)(1 + G_d G_l)
     - G_l + rho G_d - a^2 C0 >= 0, whose positive root is p = 2 |C0| / (C1 + sqrt(C1^2 + 4 C2 |C0|)).
@@ -149,7 +149,7 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
 def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
     """K and S from a masstone R_inf and a film of thickness X over a background R_g that reads R.
 
-    Thesis eq. 4.1, S X = [arcoth((a - R)/b) - arcoth((a - R_g)/b)] / b, turns complex when the film is
+    S X = [arcoth((a - R)/b) - arcoth((a - R_g)/b)] / b (thesis eq. 4.1) turns complex when the film is
     brighter than its masstone over a light background (R > R_inf). The real-valued equivalent used here
     (``shared/method/notes.md``) is
 
@@ -158,12 +158,18 @@ def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> In
         delta = (1/R_inf - R_inf)(R - R_g) / ((R_inf - R)(1/R_inf - R_g)),
 
     which stays exact as R_inf -> 1 (K -> 0, where S X -> (R - R_g) / ((1 - R)(1 - R_g))).
-    K = S (a - 1) with a - 1 = K/S = (1 - R_inf)^2 / (2 R_inf) (thesis eq. 4.2).
+    K = S (a - 1) (thesis eq. 4.2) with a - 1 = K/S = (1 - R_inf)^2 / (2 R_inf) (thesis eq. 3.7).
 
     Flags: OPAQUE where |R - R_inf| <= tolerance R_inf (S is then the lower bound at which the film reads
     within tolerance of its masstone); NO_CONTRAST where |R_inf - R_g| <= tolerance R_inf (K = S = 0, K/S
     exact); OUT_OF_RANGE where R is not between R_g and R_inf, or R_inf is outside [1e-9, 1] (it is then
     clipped to that range).
+
+    >>> from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+    >>> K, S, X, R_g = 1.0, 40.0, 0.02, 0.04  # per mm, mm: a 20 um film over a black card
+    >>> result = two_constant(reflectance_infinite(K, S), reflectance_over_background(K, S, X, R_g), R_g, X)
+    >>> round(float(result.K), 9), round(float(result.S), 9), int(result.flags)
+    (1.0, 40.0, 0)
     """
     X = _check_thickness(X)
     tolerance = _check_tolerance(tolerance)
@@ -245,7 +251,8 @@ def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: f
     """K and S from one film thickness X drawn over two backings of measured reflectance.
 
     With y = b coth(b S X), a film over background R_g,i that reads R_i satisfies
-    (R_i + R_g,i) a + (R_i - R_g,i) y = 1 + R_i R_g,i (``shared/method/notes.md``), linear in (a, y).
+    (R_i + R_g,i) a + (R_i - R_g,i) y = 1 + R_i R_g,i (thesis eq. 3.5 multiplied out; ``shared/method/notes.md``),
+    linear in (a, y).
     Substituting a = 1 + u (u = K/S) gives (R_i + R_g,i) u + (R_i - R_g,i) y = (1 - R_i)(1 - R_g,i),
     which Cramer's rule solves as u = N_u / D, y = N_y / D with
 
@@ -259,8 +266,8 @@ def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: f
         S X = artanh(w) / b = (D / N_y) artanh(w) / w,     K X = (N_u / N_y) artanh(w) / w,
 
     which never divides by b or D: K -> 0 and a pure absorber (R_b = G_b = 0, where K X -> artanh(w))
-    are ordinary values. Curtis et al. 1997 (thesis eq. 4.5, which is an arcoth, not an arcosh) is the
-    special case G_b = 0, G_w = 1, X = 1.
+    are ordinary values; K = S (a - 1) as in thesis eq. 4.6. Curtis et al. 1997 (thesis eq. 4.5, which is an arcoth,
+    not an arcosh) is the special case G_b = 0, G_w = 1, X = 1.
 
     The two backings may come in either order: swapping them (with their readings) negates D, N_u and N_y
     and leaves the solution unchanged, so a "black" backing brighter than the "white" one is the same film.
@@ -271,6 +278,13 @@ def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: f
     for OPAQUE; or K = 0 where only the absorption came out negative), e.g. a film over the dark backing
     darker than it while it brightens the light one, or equal backings with different readings;
     AT_BOUND where K/S came out negative by less than ``tolerance`` (K = 0).
+
+    >>> from kmpipe.physics.kubelka_munk import reflectance_over_background
+    >>> K, S, X, black, white = 1.0, 40.0, 0.02, 0.04, 0.85  # per mm, mm, and the cards' reflectances
+    >>> over_black, over_white = (reflectance_over_background(K, S, X, g) for g in (black, white))
+    >>> result = black_white(over_black, over_white, black, white, X)
+    >>> round(float(result.K), 9), round(float(result.S), 9), int(result.flags)
+    (1.0, 40.0, 0)
     """
     X = _check_thickness(X)
     tolerance = _check_tolerance(tolerance)
@@ -403,7 +417,7 @@ def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
 
 
 def curtis(R_over_black, R_over_white, X=1.0, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
-    """Curtis et al. 1997 (thesis eq. 4.5 with arcoth): ideal backings, black 0 and white 1.
+    """Curtis et al. 1997 (thesis eq. 4.5 with arcoth, and thesis eq. 4.6): ideal backings, black 0 and white 1.
 
     Stable form: a - 1 = (1 - R_w)(1 - R_b) / (2 R_b), which :func:`black_white` reproduces exactly
     with G_b = 0, G_w = 1 (D = 2 R_b, N_u = (1 - R_b)(1 - R_w), N_y = (1 + R_w)(1 - R_b)), keeping full

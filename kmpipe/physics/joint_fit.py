@@ -5,8 +5,9 @@ Model: measurement i at wavelength j reads
     R_m,ij = F(R_ij),   R_ij = R_KM(K_j, S_j, X_i, G_ij)     (film of thickness X_i over background G_ij)
                         R_ij = R_inf(K_j, S_j)                (masstone: X_i = inf)
 
-with F the Saunderson correction (identity when off) and R_KM the film-over-background reflectance of
-:mod:`kmpipe.physics.kubelka_munk`. The fit minimizes
+with F the Saunderson correction (identity when off), R_KM the film-over-background reflectance of
+:mod:`kmpipe.physics.kubelka_munk` (thesis eq. 3.5, evaluated as thesis eq. 3.14 with R0 and T of thesis eq. 3.8
+and thesis eq. 3.9) and R_inf that of thesis eq. 3.6. The fit minimizes
 
     (1 / m n) sum_ij (R_m,ij - y_ij)^2 + (lambda / n) sum_j [(d2 K_j / K_bar)^2 + (d2 S_j / S_bar)^2]
 
@@ -52,7 +53,7 @@ class JointFit:
 
 
 def _film_and_derivatives(K, S, X, G):
-    """R over background G, and dR/dK, dR/dS, for finite X (see the module docstring for R)."""
+    """R over background G (thesis eq. 3.5 as R0 + T^2 G / (1 - R0 G)), and dR/dK, dR/dS, for finite X."""
     s = X * X * K * (K + 2.0 * S)
     x = np.sqrt(s)
     t = _tanhc(x)
@@ -80,7 +81,8 @@ def _film_and_derivatives(K, S, X, G):
 
 
 def _masstone_and_derivatives(K, S, K0, p):
-    """R_inf = S / (K + S + beta), beta = sqrt(K (K + 2S)); dR_inf/dp with K = K0 p^2, and dR_inf/dS."""
+    """R_inf = S / (K + S + beta), beta = sqrt(K (K + 2S)) (thesis eq. 3.6 as 1 / (a + b)); dR_inf/dp with K = K0 p^2,
+    and dR_inf/dS."""
     root = np.sqrt(K + 2.0 * S)
     beta = np.sqrt(K) * root
     den = K + S + beta
@@ -283,6 +285,17 @@ def fit_joint(
         lambda of the second-difference penalty (0 = wavelengths fitted independently). The penalty
         weighs squared relative curvature against squared residuals (~1e-5 for readings with 0.3 %
         noise), so lambda ~ 1e-4 starts to smooth; 1e-6 changes K by ~1e-4 (benchmarks/bench_fit.py).
+
+    >>> import numpy as np
+    >>> from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
+    >>> K, S = np.array([1.0, 3.0]), np.array([40.0, 30.0])  # per mm at two wavelengths
+    >>> thickness = np.array([np.inf, 0.01, 0.01, 0.03])  # masstone; 10 um over black and white; 30 um over black
+    >>> backgrounds = np.array([[0.0, 0.0], [0.04, 0.04], [0.85, 0.85], [0.04, 0.04]])
+    >>> readings = np.array([reflectance_infinite(K, S)] + [reflectance_over_background(K, S, x, g)
+    ...                     for x, g in zip(thickness[1:], backgrounds[1:])])
+    >>> fit = fit_joint(readings, backgrounds, thickness, K * 1.3, S * 0.8)  # started 30 % and 20 % off
+    >>> np.round(fit.K, 6).tolist(), np.round(fit.S, 6).tolist()
+    ([1.0, 3.0], [40.0, 30.0])
     """
     y = np.asarray(readings, dtype=np.float64)
     G = np.asarray(backgrounds, dtype=np.float64)

@@ -2,7 +2,8 @@
 
 Notation (Kubelka 1948; thesis chapter 3.3): K absorption and S scattering coefficients per unit length
 (kmpipe uses 1/mm), X film thickness in the same length unit (mm), R_g reflectance of what lies beneath,
-a = 1 + K/S, b = sqrt(a^2 - 1), R_inf = a - b.
+a = 1 + K/S, b = sqrt(a^2 - 1), R_inf = a - b. Thesis equations are tagged ``thesis eq. N.M`` (index:
+``docs/equations.md``).
 
 Every function takes numpy arrays of any broadcastable shape (wavelength or camera channel last) and
 returns float64 arrays; nothing here divides by S or by b, so K = 0, S = 0 and very thick films are
@@ -43,8 +44,8 @@ def _sech(x: np.ndarray) -> np.ndarray:
 def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
     """Reflectance R0 of a film over an ideal black background, and its diffuse transmittance T.
 
-    Textbook form (thesis eq. 4.4; Kubelka 1948): R0 = sinh(bSX) / (a sinh(bSX) + b cosh(bSX)),
-    T = b / (a sinh(bSX) + b cosh(bSX)). Evaluated as
+    Textbook form (Kubelka 1948): R0 = sinh(bSX) / (a sinh(bSX) + b cosh(bSX)) (thesis eq. 3.8, printed again as
+    thesis eq. 4.4), T = b / (a sinh(bSX) + b cosh(bSX)) (thesis eq. 3.9). Evaluated as
 
         beta = sqrt(K (K + 2 S)),  x = beta X,  g = X tanh(x) / x,  D = 1 + (K + S) g,
         R0 = S g / D,  T = sech(x) / D,
@@ -63,6 +64,13 @@ def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
         Absorption and scattering coefficients, >= 0, per unit length (1/mm).
     X
         Film thickness, >= 0, in the same length unit (mm).
+
+    >>> R0, T = film_reflectance_transmittance(0.0, 2.0, 0.5)  # no absorption: R0 = SX / (1 + SX), T = 1 - R0
+    >>> float(R0), float(T)
+    (0.5, 0.5)
+    >>> R0, T = film_reflectance_transmittance(1.0, 4.0, 1e3)  # opaque: R0 -> R_inf = 0.5, T -> 0
+    >>> float(R0), float(T)
+    (0.5, 0.0)
     """
     K, S, X = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (K, S, X)))
     big = (K > 1e150) | (S > 1e150)  # K (K + 2 S) would overflow: beta / 2 = sqrt(K) sqrt(K/4 + S/2)
@@ -103,9 +111,10 @@ def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
 
 
 def film_over_background(R0, T, R_g) -> np.ndarray:
-    """Reflectance of a film (R0, T) lying on a background of reflectance R_g (thesis eq. 3.13).
+    """Reflectance of a film (R0, T) lying on a background of reflectance R_g (thesis eq. 3.14).
 
-    R = R0 + T^2 R_g / (1 - R0 R_g): the film's own reflectance plus the light transmitted twice
+    R = R0 + T^2 R_g / (1 - R0 R_g), thesis eq. 3.14 with the background as layer 2 (the thesis prints T2 in its
+    numerator where R2, here R_g, belongs): the film's own reflectance plus the light transmitted twice
     after any number of inter-reflections between film and background. A perfect mirror on a perfect
     mirror (R0 = R_g = 1, so T = 0) gives R0. The result is clamped to [0, 1]: rounding leaves R up to
     2 ulp above 1 where R_g = 1 and the film barely absorbs.
@@ -115,26 +124,40 @@ def film_over_background(R0, T, R_g) -> np.ndarray:
 
 
 def _positive(denominator: np.ndarray) -> np.ndarray:
-    """A denominator 1 - R R' of eqs. 3.13 and 3.14, with 0 (R = R' = 1, where the numerator is 0) taken as 1."""
+    """A denominator 1 - R R' of thesis eq. 3.13 and thesis eq. 3.14, with 0 (R = R' = 1, where the numerator is 0)
+    taken as 1."""
     return np.where(denominator > 0.0, denominator, 1.0)
 
 
 def reflectance_over_background(K, S, X, R_g) -> np.ndarray:
-    """Reflectance in [0, 1] of a film (K, S per mm; X mm) over a background of reflectance R_g.
+    """Reflectance in [0, 1] of a film (K, S per mm; X mm) over a background of reflectance R_g (thesis eq. 3.5).
 
-    R = R0 + T^2 R_g / (1 - R0 R_g) with R0, T from :func:`film_reflectance_transmittance`, clamped to
-    [0, 1] (see :func:`film_over_background`).
+    R = (1 - R_g (a - b coth(bSX))) / (a - R_g + b coth(bSX)) (thesis eq. 3.5), evaluated as the algebraically
+    identical R = R0 + T^2 R_g / (1 - R0 R_g) (:func:`film_over_background`) with R0, T from
+    :func:`film_reflectance_transmittance` (no coth, so no division by S or b), clamped to [0, 1].
+
+    >>> float(reflectance_over_background(1.0, 4.0, 0.0, 0.8))  # no film: the background itself
+    0.8
+    >>> round(float(reflectance_over_background(1.0, 4.0, 100.0, 0.8)), 12)  # opaque: R_inf = 0.5 on any background
+    0.5
+    >>> float(reflectance_over_background(0.0, 2.0, 0.5, 0.0))  # white film over black: SX / (1 + SX)
+    0.5
     """
     R0, T = film_reflectance_transmittance(K, S, X)
     return film_over_background(R0, T, R_g)
 
 
 def reflectance_infinite(K, S) -> np.ndarray:
-    """Reflectance R_inf of an opaque (infinitely thick) layer: R_inf = a - b, a = 1 + K/S.
+    """Reflectance R_inf of an opaque (infinitely thick) layer (thesis eq. 3.6): R_inf = a - b, a = 1 + K/S.
 
     Computed from q = K/S by :func:`reflectance_infinite_from_ks` (so K and S near the ends of the
     floating-point range cannot underflow or overflow K (K + 2S)). S = 0 gives 0, also for K = 0: a film
     that does not scatter reflects nothing at any thickness (R0 = 0), so its limit is 0.
+
+    >>> float(reflectance_infinite(1.0, 4.0))  # a = 1.25, b = sqrt(a^2 - 1) = 0.75
+    0.5
+    >>> float(reflectance_infinite(0.0, 4.0)), float(reflectance_infinite(5.0, 0.0))  # no absorption; no scattering
+    (1.0, 0.0)
     """
     K, S = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (K, S)))
     scatters = S > 0.0
@@ -144,11 +167,16 @@ def reflectance_infinite(K, S) -> np.ndarray:
 
 
 def ks_from_reflectance_infinite(R_inf) -> np.ndarray:
-    """K/S of an opaque layer from its reflectance, KM convention: K/S = (1 - R_inf)^2 / (2 R_inf).
+    """K/S of an opaque layer from its reflectance, KM convention: K/S = (1 - R_inf)^2 / (2 R_inf) (thesis eq. 3.7).
 
     (The radiative-transfer convention uses 4 R_inf in the denominator; kmpipe never does.)
     R_inf = 0 gives +inf (a black absorber), and so does R_inf below about 3e-309 (K/S beyond the float64
     range); callers that need a finite value must clip R_inf first.
+
+    >>> float(ks_from_reflectance_infinite(0.5))  # (1 - 0.5)^2 / (2 x 0.5)
+    0.25
+    >>> round(float(reflectance_infinite(ks_from_reflectance_infinite(0.3), 1.0)), 12)  # the inverse of R_inf(K/S)
+    0.3
     """
     R_inf = np.asarray(R_inf, dtype=np.float64)
     with np.errstate(divide="ignore", over="ignore"):
@@ -156,10 +184,10 @@ def ks_from_reflectance_infinite(R_inf) -> np.ndarray:
 
 
 def reflectance_infinite_from_ks(ks) -> np.ndarray:
-    """R_inf from K/S (KM convention): R_inf = 1 / (1 + q + sqrt(q (q + 2))), q = K/S.
+    """R_inf from K/S (KM convention, thesis eq. 3.6): R_inf = 1 / (1 + q + sqrt(q (q + 2))), q = K/S.
 
-    This is a - b written as 1 / (a + b), which has no cancellation for small or large q; for q beyond
-    1e150 (where q (q + 2) would overflow) it uses 0.5 / (q + 1), the same to rounding.
+    This is a - b = 1 + q - sqrt(q^2 + 2 q) written as 1 / (a + b), which has no cancellation for small or large
+    q; for q beyond 1e150 (where q (q + 2) would overflow) it uses 0.5 / (q + 1), the same to rounding.
     """
     q = np.asarray(ks, dtype=np.float64)
     huge = q > 1e150
@@ -168,7 +196,7 @@ def reflectance_infinite_from_ks(ks) -> np.ndarray:
 
 
 def stack_films(R0, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Compose homogeneous films into one layer (thesis eqs. 3.13 and 3.14), composed bottom-up.
+    """Compose homogeneous films into one layer (thesis eq. 3.13 and thesis eq. 3.14), composed bottom-up.
 
     Parameters
     ----------
@@ -181,9 +209,18 @@ def stack_films(R0, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     R_top, T_total, R_bottom
         Reflectance of the stack seen from above, its transmittance (the same in both directions),
         and its reflectance seen from below. Adding layer i on top of the partial stack (r, t, r'):
-        r <- R_i + T_i^2 r / (1 - R_i r),  t <- T_i t / (1 - R_i r),  r' <- r' + t^2 R_i / (1 - R_i r).
+        r <- R_i + T_i^2 r / (1 - R_i r) (thesis eq. 3.14, printed with T2 where R2 belongs),
+        t <- T_i t / (1 - R_i r) (thesis eq. 3.13), and r' <- r' + t^2 R_i / (1 - R_i r) (thesis eq. 3.12 seen from
+        below: the partial stack, whose two sides differ, is layer 1 with R_I = r; printed with T2 for R2).
         Composing top-down instead would need each partial stack's underside reflectance, which is
         why the recurrence runs from the bottom. All three are clamped to [0, 1].
+
+    >>> import numpy as np
+    >>> R0, T = film_reflectance_transmittance(1.0, 40.0, np.array([0.01, 0.01]))  # two 10 um films, top first
+    >>> R_top, T_total, R_bottom = stack_films(R0, T)
+    >>> whole = film_reflectance_transmittance(1.0, 40.0, 0.02)  # compose to the 20 um film of the same material
+    >>> bool(np.allclose([R_top, T_total], whole, rtol=1e-12, atol=0.0)), bool(np.isclose(R_bottom, R_top))
+    (True, True)
     """
     R0 = np.asarray(R0, dtype=np.float64)
     T = np.asarray(T, dtype=np.float64)
@@ -200,7 +237,8 @@ def stack_films(R0, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def stack_over_substrate(R0, T, R_g) -> np.ndarray:
     """Reflectance in [0, 1] of a stack of films (index 0 on top, shape (n_layers, ...)) over a substrate R_g.
 
-    R = R_top + T_total^2 R_g / (1 - R_bottom R_g) (eq. 3.13 with the stack of :func:`stack_films`), clamped
+    R = R_top + T_total^2 R_g / (1 - R_bottom R_g) (thesis eq. 3.12: the stack of :func:`stack_films` is layer 1, its
+    underside R_bottom the thesis's R_I, the substrate layer 2; printed with T2 where R2, here R_g, belongs), clamped
     to [0, 1]: rounding leaves it up to 2 ulp above 1 where R_g = 1 and the films barely absorb.
     """
     R_top, T_total, R_bottom = stack_films(R0, T)
@@ -224,6 +262,11 @@ def hiding_thickness(K, S, R_black, R_white, contrast_ratio: float = 0.98) -> np
         Reflectances of the two backings (e.g. 0.03 and 0.85 for a Leneta-style card).
     contrast_ratio
         Target ratio in (0, 1); 0.98 is the common definition of hiding.
+
+    >>> X = hiding_thickness(1.0, 40.0, 0.04, 0.85)  # mm, for the default contrast ratio 0.98
+    >>> over_black, over_white = (reflectance_over_background(1.0, 40.0, X, g) for g in (0.04, 0.85))
+    >>> round(float(over_black / over_white), 9), float(hiding_thickness(1.0, 0.0, 0.04, 0.85))
+    (0.98, inf)
     """
     if not 0.0 < contrast_ratio < 1.0:
         raise ValueError(f"contrast_ratio must lie in (0, 1), got {contrast_ratio}")

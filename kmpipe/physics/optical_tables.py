@@ -2,12 +2,13 @@
 
 Colour (method notes, "Colour"): reflectance spectra R(l) under the scene illuminant S(l) become CIE XYZ
 (colour-science integration on the spectra's own grid, the same as :mod:`kmpipe.physics.colorimetry`), are adapted
-by CAT02 from the white of the illuminant to D65 and are expressed in linear sRGB / Rec.709. All of this is
-linear in R, so it is one weight matrix W (n_wavelengths x 3): linear RGB = R(l) @ W.
+by CAT02 from the white of the illuminant to D65 and are expressed in linear sRGB / Rec.709 (not the thesis's
+CIE RGB under illuminant E, thesis eq. A.4, which is no display space). All of this is linear in R, so it is one
+weight matrix W (n_wavelengths x 3): linear RGB = R(l) @ W.
 
 Render modes (issue "The bundled OSMesa renderer", part 2):
 
-- ``rgb``: each layer's R0 and T reduced to RGB by W, layers composited per RGB channel (eqs. 3.13, 3.14).
+- ``rgb``: each layer's R0 and T reduced to RGB by W, layers composited per RGB channel (thesis eq. 3.14, bottom-up).
   Reducing R0 and T separately and compositing afterwards is the approximation of this mode: the KM
   composition is non-linear, so it does not commute with the spectral integral.
 - ``bands:N``: R0 and T averaged over N contiguous spectral bands, composited per band, then band -> RGB.
@@ -244,7 +245,7 @@ def _reduce(values: np.ndarray, kind: str, space: WorkingSpace, bands: BandParti
 def composite(tables: Sequence[OpticalTable], thicknesses, substrate, mode: str) -> np.ndarray:
     """Linear working-space RGB of a stack of films (``tables[0]`` on top) over a substrate, in ``mode``.
 
-    The layers are composed bottom-up onto the substrate by eqs. 3.13 / 3.14
+    The layers are composed bottom-up onto the substrate by thesis eq. 3.14
     (:func:`kmpipe.physics.kubelka_munk.stack_over_substrate`) in the mode's channels, then converted once:
     ``rgb`` per RGB channel (result as is), ``bands:N`` per band (then @ to_rgb), ``exact`` per wavelength
     (then @ W).

@@ -12,13 +12,25 @@ import numpy as np
 
 
 def saunderson_forward(R, k1: float, k2: float) -> np.ndarray:
-    """Measured reflectance from KM reflectance: R_m = k1 + (1 - k1)(1 - k2) R / (1 - k2 R)."""
+    """Measured reflectance from KM reflectance: R_m = k1 + (1 - k1)(1 - k2) R / (1 - k2 R).
+
+    >>> float(saunderson_forward(0.0, 0.04, 0.6))  # a black body still reflects its surface's k1
+    0.04
+    >>> round(float(saunderson_inverse(saunderson_forward(0.5, 0.04, 0.6), 0.04, 0.6)), 12)
+    0.5
+    """
     R = np.asarray(R, dtype=np.float64)
     return k1 + (1.0 - k1) * (1.0 - k2) * R / (1.0 - k2 * R)
 
 
 def saunderson_inverse(R_m, k1: float, k2: float) -> np.ndarray:
-    """KM reflectance from measured reflectance: R = (R_m - k1) / (1 - k1 - k2 + k2 R_m)."""
+    """KM reflectance from measured reflectance: R = (R_m - k1) / (1 - k1 - k2 + k2 R_m).
+
+    >>> float(saunderson_forward(0.0, 0.04, 0.6))  # a black body still reflects its surface's k1
+    0.04
+    >>> round(float(saunderson_inverse(saunderson_forward(0.5, 0.04, 0.6), 0.04, 0.6)), 12)
+    0.5
+    """
     R_m = np.asarray(R_m, dtype=np.float64)
     return (R_m - k1) / (1.0 - k1 - k2 + k2 * R_m)
 

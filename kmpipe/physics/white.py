@@ -1,8 +1,9 @@
 """White-standard normalisation: measured radiance to reflectance.
 
-A spectroradiometer (e.g. the Konica Minolta CS-2000) measures radiance L (W sr-1 m-2 nm-1). With a white
-standard of known (certified) reflectance R_white measured under the same light and geometry, and an optional
-dark reading L_dark (stray light / offset, lamp off or cavity), the sample's reflectance at each wavelength is
+A spectroradiometer (e.g. the Konica Minolta CS-2000) measures radiance L (W sr-1 m-2 nm-1), the light's
+radiance times the sample's reflectance: E_m = E_L R (thesis eq. 4.3). With a white standard of known (certified)
+reflectance R_white measured under the same light and geometry (which gives E_L), and an optional dark reading
+L_dark (stray light / offset, lamp off or cavity), the sample's reflectance at each wavelength is
 
     R = (L_sample - L_dark) / (L_white - L_dark) * R_white
 
@@ -22,13 +23,8 @@ import numpy as np
 
 from kmpipe.errors import InputError
 from kmpipe.formats.files import is_regular
-from kmpipe.formats.spectra import (
-    CS2000_ERROR_SENTINEL,
-    SpectralTable,
-    format_number,
-    read_spectra_csv,
-    resample,
-)
+from kmpipe.formats.spectra import CS2000_ERROR_SENTINEL, SpectralTable, format_number, read_spectra_csv
+from kmpipe.formats.spectral_grid import resample
 
 BUILTIN_BASO4 = "builtin:baso4"
 CERTIFIED_RANGE = (0.5, 1.05)
@@ -48,7 +44,7 @@ def baso4_typical(wavelengths_nm: Sequence[float] | np.ndarray) -> np.ndarray:
     """Typical reflectance (fraction) of a pressed/painted BaSO4 white standard at ``wavelengths_nm`` (nm).
 
     The built-in curve (``kmpipe/data/baso4_typical.csv``, 380-780 nm every 5 nm: about 0.95 at 380 nm,
-    0.975 at 400 nm, 0.985 over 450-700 nm) resampled with `kmpipe.formats.spectra.resample` (Sprague). It is a
+    0.975 at 400 nm, 0.985 over 450-700 nm) resampled with `kmpipe.formats.spectral_grid.resample` (Sprague). It is a
     typical curve, not a certificate. InputError if the grid extends beyond 380-780 nm.
     """
     return np.array(resample(_builtin_baso4_table(), wavelengths_nm).column("baso4"))
@@ -217,7 +213,8 @@ def radiance_to_reflectance(
 ) -> np.ndarray:
     """Reflectance (fraction) from radiance readings and a white standard of certified reflectance.
 
-    R = (L_sample - L_dark) / (L_white - L_dark) * R_certified, element-wise along the wavelength axis.
+    R = (L_sample - L_dark) / (L_white - L_dark) * R_certified, element-wise along the wavelength axis:
+    thesis eq. 4.3, R = E_m / E_L, with the light E_L = (L_white - L_dark) / R_certified measured on the white standard.
 
     Parameters
     ----------
@@ -247,6 +244,13 @@ def radiance_to_reflectance(
         negative dark reading; white minus dark <= 0 anywhere (implausibly dim); a sample reading below the
         dark reading; a white whose peak (minus dark) is below a sample's peak (minus dark), i.e. a reference
         darker than the sample; certified reflectance outside (0.5, 1.05].
+
+    >>> import numpy as np
+    >>> sample, white = np.array([0.6, 1.2]), np.array([2.0, 2.4])  # W sr-1 m-2 nm-1 at two wavelengths
+    >>> radiance_to_reflectance(sample, white, np.array([0.98, 0.98])).round(12).tolist()
+    [0.294, 0.49]
+    >>> radiance_to_reflectance(sample, white, np.array([1.0, 1.0]), dark=0.2).round(12).tolist()
+    [0.222222222222, 0.454545454545]
     """
     if not isinstance(source, ReadingSource):
         source = ReadingSource(path=None if source is None else Path(source))

@@ -16,8 +16,10 @@ form finds the film opaque, lsq keeps the closed-form K and S (exact K/S, lower-
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -131,7 +133,17 @@ def fit_sample(
     smoothness: float | None = None,
     noise: float | None = None,
 ) -> Material:
-    """Fit K and S (per mm) of one sample; arguments left None come from the manifest's ``[fit]`` table."""
+    """Fit K and S (per mm) of one sample; arguments left None come from the manifest's ``[fit]`` table.
+
+    >>> import json, kmpipe, pathlib, numpy as np
+    >>> from kmpipe.formats.sample import load_sample
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> material = fit_sample(load_sample(F1 / "manifest.toml"))  # the manifest's [fit]: lsq
+    >>> truth = json.loads((F1 / "truth.json").read_text())  # the K and S the simulated readings came from
+    >>> K, S = (np.interp(material.wavelengths, truth["wavelengths_nm"], truth[q]) for q in ("K_per_mm", "S_per_mm"))
+    >>> material.method, bool(np.median(abs(material.K / K - 1)) < 0.03 and np.median(abs(material.S / S - 1)) < 0.03)
+    ('lsq', True)
+    """
     settings = sample.settings
     method = method or settings.method
     saunderson = saunderson if saunderson is not None else settings.saunderson
@@ -232,3 +244,65 @@ def provenance(sample: Sample, output: Path) -> dict:
         "manifest": rel(sample.manifest_path),
         "inputs": [{"path": rel(p), "sha256": sha256(p)} for p in sample.inputs],
     }
+
+
+def fit_manifests(
+    manifests: Sequence[str | Path],
+    output: str | Path,
+    *,
+    grid: str | None = None,
+    method: str | None = None,
+    saunderson: tuple[float, float] | None = None,
+    smoothness: float | None = None,
+    noise: float | None = None,
+) -> list[tuple[Path, Material]]:
+    """The fit stage: fit the sample of each manifest and write its material, with provenance (``kmpipe fit``).
+
+    ``output`` is the MATERIAL.json of a single manifest, or a folder receiving one ``SAMPLE.json`` per sample when
+    there are several manifests or it is a folder. Settings left None come from each manifest's ``[fit]`` table
+    (see :func:`fit_sample`). A material is never written over one of the files it was fitted from, and two
+    manifests naming the same sample are refused before the second is written. Returns (path, material) pairs.
+
+    >>> import tempfile, pathlib, kmpipe
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> manifest = F1 / "manifest.toml"
+    >>> [(path, material)] = fit_manifests([manifest], pathlib.Path(tempfile.mkdtemp()) / "F1.json")
+    >>> path.name, material.method, material.name, len(material.wavelengths)
+    ('F1.json', 'lsq', 'F1', 81)
+    >>> bool(material.K.min() >= 0 and material.S.min() > 0)
+    True
+    """
+    from kmpipe.formats import files
+    from kmpipe.formats.material import write_material
+    from kmpipe.formats.sample import load_sample
+
+    manifests, output = [Path(m) for m in manifests], Path(output)
+    to_folder = len(manifests) > 1 or output.is_dir()
+    if to_folder and output.exists() and not output.is_dir():
+        raise InputError(
+            "is a file; with several manifests, -o must name a folder (one SAMPLE.json is written there per sample)",
+            path=output,
+            field="-o",
+        )
+    if to_folder:
+        files.output_folder(output)
+    else:
+        files.output_file(output, inputs=manifests)
+    written: list[tuple[Path, Material]] = []
+    for manifest in manifests:
+        sample = load_sample(manifest, grid=grid)
+        # the manifest's sample name is a safe file name; resolved, it must still stay in the folder
+        target = files.within(output, f"{sample.name}.json", field="sample.name") if to_folder else output
+        if any(path == target for path, _ in written):
+            raise InputError(
+                f"names sample {sample.name!r}, like an earlier manifest; each sample needs its own name "
+                f"(its material is written to {target}); nothing was written for this one",
+                path=manifest,
+                field="sample.name",
+            )
+        files.refuse_inputs(target, [*manifests, *sample.inputs])
+        material = fit_sample(sample, method=method, saunderson=saunderson, smoothness=smoothness, noise=noise)
+        material = dataclasses.replace(material, provenance=provenance(sample, target))
+        write_material(material, target)
+        written.append((target, material))
+    return written

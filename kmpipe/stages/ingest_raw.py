@@ -20,21 +20,15 @@ import cv2
 import numpy as np
 
 from instruments.colorchecker import ColorCheckerNotFound, find_colorchecker, sample_colorchecker_in_slot
-from instruments.drawdown_card import (
-    CardNotFound,
-    Layout,
-    LayoutError,
-    Region,
-    load_layout,
-    locate_card,
-    paper_illumination,
-    sample_pixels,
-    sample_region,
-)
+from instruments.drawdown_card.flat_field import paper_illumination
+from instruments.drawdown_card.layout import Layout, Region
+from instruments.drawdown_card.locate import CardNotFound, locate_card
+from instruments.drawdown_card.sampling import sample_pixels, sample_region
 from instruments.raw_photo import RawPhotoError, read_raw, tone_mapped_8bit
 from kmpipe.errors import InputError
 from kmpipe.formats.atomic_write import write_text_atomically
-from kmpipe.formats.files import safe_name
+from kmpipe.formats.card_layout import load_card_layout
+from kmpipe.formats.files import output_folder, refuse_inputs, regular_file, safe_name
 from kmpipe.formats.manifest import parse_thickness_mm
 from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
 from kmpipe.physics.colorimetry import white_XYZ
@@ -187,11 +181,32 @@ def ingest_raw(
     thickness: str | None = None,
     polarization_factor: float = 1.0,
 ) -> Path:
-    """Write reflectance.csv (3 channels, one column per region and photo) and manifest.toml; returns the manifest."""
-    try:
-        layout = load_layout(layout_path)
-    except LayoutError as err:
-        raise InputError(str(err)) from None  # the message names the file already
+    r"""The ingest-raw stage: cross-polarized RAW photos of a drawdown card to reflectance.csv (3 channels, one
+    column per region and photo) and manifest.toml in ``out_dir`` (an existing folder); returns the manifest.
+
+    Each photo must be a regular file (a FIFO or a device is refused before it is opened) and no output may be one
+    of the inputs. InputError naming the photo, the region or the field for anything the photos cannot give.
+
+    >>> import pathlib, tempfile
+    >>> from instruments.drawdown_card.layout import default_layout
+    >>> from kmpipe.formats.card_layout import write_card_layout
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> write_card_layout(default_layout(), folder / "card.layout.toml")
+    >>> _ = (folder / "photo.dng").write_bytes(b"II*\x00 not a raw photo")
+    >>> try:
+    ...     ingest_raw([folder / "photo.dng"], folder / "card.layout.toml", folder)
+    ... except InputError as err:
+    ...     print(err)  # doctest: +ELLIPSIS
+    /.../photo.dng: LibRaw cannot decode it (...); expected a camera RAW file with a 2x2 Bayer colour filter array ...
+    """
+    out_dir = output_folder(out_dir, create=False)
+    if name is not None:
+        safe_name(name, field="--name")
+    for photo in photos:  # rawpy would read a FIFO or a device
+        regular_file(photo, "RAW photo")
+    for output in ("reflectance.csv", "manifest.toml"):
+        refuse_inputs(out_dir / output, [*photos, layout_path])
+    layout = load_card_layout(layout_path)
     roi_regions = [_roi_region(text) for text in rois]
     if roi_regions:
         by_name = {r.name: r for r in layout.regions}

@@ -21,13 +21,11 @@ import json
 import math
 import os
 import sys
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import serial
-from pydantic import Field, ValidationError, field_validator
+import tomli_w
 from rich.console import Console
 from rich.markup import escape
 
@@ -39,7 +37,6 @@ from kmpipe import __version__
 from kmpipe.errors import InputError
 from kmpipe.formats.atomic_write import write_text_atomically
 from kmpipe.formats.files import (
-    name_problem,
     output_file,
     output_folder,
     read_bytes,
@@ -47,11 +44,19 @@ from kmpipe.formats.files import (
     refuse_inputs,
     regular_file,
     same_file,
-    sha256,
 )
-from kmpipe.formats.manifest import Thickness, parse_thickness_mm
+from kmpipe.formats.manifest import parse_thickness_mm
+from kmpipe.formats.measurement_plan import (
+    Plan,
+    PlanFilm,
+    PlanInstrument,
+    Position,
+    load_plan,
+    plan_digest,
+    positions,
+)
 from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
-from kmpipe.formats.toml_input import StrictModel, field_line, input_error, located_in, read_toml, toml_line
+from kmpipe.formats.toml_input import field_line
 from kmpipe.physics.colorimetry import cmfs
 from kmpipe.physics.white import certified_reflectance, radiance_to_reflectance
 
@@ -68,133 +73,6 @@ SESSION_FILES = ("radiance.csv", "session.json", "reflectance.csv", "manifest.to
 XY_TOLERANCE = 0.005
 LV_TOLERANCE = 0.02
 LV_FLOOR = 1e-4
-
-
-class PlanSample(StrictModel):
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
-    product: str = ""
-    kind: str = ""
-
-    @field_validator("name")
-    @classmethod
-    def _a_safe_name(cls, name: str) -> str:
-        """The session folder is named after the sample: ``.`` or ``..`` would lead out of the plan's folder."""
-        problem = name_problem(name)
-        if problem is not None:
-            raise ValueError(f"{problem} (the session folder is named after the sample)")
-        return name
-
-
-class PlanInstrument(StrictModel):
-    speed: Literal["normal", "fast", "multi-normal", "multi-fast", "manual"] = "normal"
-    nd: Literal["off", "on", "auto"] = "auto"
-    integration: float | None = Field(default=None, gt=0)  # s: multi-integration time, or manual exposure
-    observer: Literal[2, 10] = 2
-    repeats: int = Field(default=1, ge=1, le=20)
-
-
-class PlanWhite(StrictModel):
-    certified: str = "builtin:baso4"
-    repeats: int | None = Field(default=None, ge=1, le=20)
-
-
-class PlanBacking(StrictModel):
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
-
-
-class _WithThickness(StrictModel):
-    thickness: Thickness | None = None  # e.g. "30 um"
-
-
-class PlanMasstone(_WithThickness):
-    pass
-
-
-class PlanFilm(_WithThickness):
-    over: str
-
-
-class Plan(StrictModel):
-    sample: PlanSample
-    instrument: PlanInstrument = PlanInstrument()
-    white: PlanWhite = PlanWhite()
-    backing: list[PlanBacking] = Field(min_length=1)
-    masstone: list[PlanMasstone] = Field(default_factory=list)
-    film: list[PlanFilm] = Field(min_length=1)
-
-
-def plan_digest(path: Path) -> str:
-    """SHA-256 (hex) of the plan file's bytes: what a session folder and a session log record as their plan."""
-    return sha256(path, "TOML")
-
-
-def load_plan(path: Path) -> Plan:
-    """Read and check a measurement plan; InputError naming the file, line and field on any problem."""
-    text, data = read_toml(path, "measurement plan")
-    try:
-        plan = Plan.model_validate(data)
-    except ValidationError as err:
-        raise input_error(err, located_in(path, text)) from None
-    names = [b.name for b in plan.backing]
-    for i, film in enumerate(plan.film):
-        if film.over not in names:
-            raise InputError(
-                f"names backing {film.over!r}; the plan's backings are {', '.join(names)}",
-                path=path,
-                line=toml_line(text, ("film", i, "over")),
-                field=f"film[{i + 1}].over",
-            )
-    return plan
-
-
-@dataclass(frozen=True)
-class Position:
-    """One thing to put under the instrument: what it is, its column name, and its manifest entry."""
-
-    role: str  # white | backing | masstone | film
-    column: str
-    prompt: str
-    over: str | None = None
-    thickness: str | None = None
-
-
-def positions(plan: Plan, thickness_of=None) -> list[Position]:
-    """Every reading of the session in order, repeats included (column names end in _1, _2, ... then)."""
-    out: list[Position] = []
-
-    def add(role, base, prompt, repeats, **extra):
-        for r in range(1, repeats + 1):
-            column = base if repeats == 1 else f"{base}_{r}"
-            suffix = "" if repeats == 1 else f" (reading {r} of {repeats})"
-            out.append(Position(role, column, prompt + suffix, **extra))
-
-    repeats = plan.instrument.repeats
-    add("white", "white_standard", "the white standard", plan.white.repeats or repeats)
-    for backing in plan.backing:
-        add("backing", backing.name, f"the bare {backing.name} backing", repeats, over=backing.name)
-    for i, masstone in enumerate(plan.masstone):
-        base = "masstone" if len(plan.masstone) == 1 else f"masstone{i + 1}"
-        add("masstone", base, "the masstone (opaque layer)", repeats, thickness=masstone.thickness)
-    for i, film in enumerate(plan.film):
-        thickness = film.thickness or (thickness_of(i, film) if thickness_of else None)
-        if thickness is None:
-            raise InputError(
-                "has no thickness; give it in the plan for an unattended session", field=f"film[{i + 1}].thickness"
-            )
-        um = parse_thickness_mm(thickness) * 1000.0
-        add(
-            "film",
-            f"film_{um:g}um_over_{film.over}",
-            f"the {thickness} film over {film.over}",
-            repeats,
-            over=film.over,
-            thickness=thickness,
-        )
-    names = [p.column for p in out]
-    if len(set(names)) != len(names):
-        duplicated = sorted({n for n in names if names.count(n) > 1})
-        raise InputError(f"two plan entries give the same reading name {duplicated[0]!r}; use repeats instead")
-    return out
 
 
 class Session:
@@ -332,33 +210,21 @@ def _finish(session: Session, plan: Plan, steps: list[Position]) -> Path:
         return radiance_to_reflectance(radiance, white, certified, source=f"{session.radiance_path}:{column}")
 
     columns: dict[str, np.ndarray] = {}
-    lines = [
-        "# Written by kmpipe measure: reflectance.csv is radiance.csv normalized by the mean white reading.",
-        "[sample]",
-        f"name = {json.dumps(plan.sample.name)}",
-        f"product = {json.dumps(plan.sample.product)}",
-        f"kind = {json.dumps(plan.sample.kind)}",
-        "",
-    ]
+    sample = {"name": plan.sample.name, "product": plan.sample.product, "kind": plan.sample.kind}
+    measured: dict[str, list[dict[str, str]]] = {"backing": [], "masstone": [], "film": []}
     for backing in plan.backing:
         names = readings_of("backing", backing.name)
         columns[backing.name] = reflectance(np.mean([session.readings[c] for c in names], axis=0), names[0])
-        lines += [
-            "[[backing]]",
-            f'name = "{backing.name}"',
-            'file = "reflectance.csv"',
-            f'column = "{backing.name}"',
-            "",
-        ]
+        measured["backing"].append({"name": backing.name, "file": "reflectance.csv", "column": backing.name})
     for p in steps:
         if p.role in ("masstone", "film"):
             columns[p.column] = reflectance(session.readings[p.column], p.column)
-            lines += [f"[[{p.role}]]", 'file = "reflectance.csv"', f'column = "{p.column}"']
+            entry = {"file": "reflectance.csv", "column": p.column}
             if p.role == "film":
-                lines.append(f'over = "{p.over}"')
+                entry["over"] = p.over
             if p.thickness:
-                lines.append(f'thickness = "{p.thickness}"')
-            lines.append("")
+                entry["thickness"] = p.thickness
+            measured[p.role].append(entry)
     instrument = session.state.get("instrument", {})
     metadata = {
         "quantity": "reflectance",
@@ -371,7 +237,9 @@ def _finish(session: Session, plan: Plan, steps: list[Position]) -> Path:
     table = SpectralTable(wavelengths, None, tuple(columns), np.array(list(columns.values())), metadata)
     write_spectra_csv(table, session.folder / "reflectance.csv")
     manifest = session.folder / "manifest.toml"
-    write_text_atomically(manifest, "\n".join(lines))
+    header = "# Written by kmpipe measure: reflectance.csv is radiance.csv normalized by the mean white reading.\n"
+    tables = {"sample": sample} | {role: entries for role, entries in measured.items() if entries}
+    write_text_atomically(manifest, header + tomli_w.dumps(tables))
     return manifest
 
 
@@ -535,6 +403,17 @@ def run_session(
     Before anything is opened or written: the outputs are checked against the inputs (``-o``, ``--record``), a
     replayed log (``replay://LOG``) and a log ``--record`` appends to must have been recorded for this plan, and a
     resumed session must follow it and be undamaged (InputError otherwise, exit status 2).
+
+    >>> import io, kmpipe, pathlib, tempfile
+    >>> from rich.console import Console
+    >>> repo = pathlib.Path(kmpipe.__file__).parents[1]
+    >>> plan = repo / "recipes" / "samples" / "F1" / "plan.toml"
+    >>> log = repo / "recipes" / "demo" / "sessions" / "F1.jsonl"  # a recorded session: replayed byte for byte
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "F1"
+    >>> quiet = Console(file=io.StringIO())
+    >>> manifest = run_session(plan, f"replay://{log}", out_dir=out, interactive=False, console=quiet)
+    >>> manifest.name, sorted(p.name for p in out.iterdir())
+    ('manifest.toml', ['manifest.toml', 'radiance.csv', 'reflectance.csv', 'session.json'])
     """
     console = console or Console(emoji=False)
     plan = load_plan(plan_path)

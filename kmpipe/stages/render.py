@@ -1,217 +1,96 @@
-"""``kmpipe render``: a scene file (:mod:`kmpipe.formats.scene`) to linear EXR and sRGB PNG frames.
+"""``kmpipe render``: a scene file (:mod:`kmpipe.formats.scene`) and its render plan to linear EXR and sRGB PNG frames.
 
-The materials' planned optical tables (:func:`kmpipe.stages.render_plan.plan_render` on the scene's one stack, each
-material over the thickness range the scene gives it) feed the renderer's Kubelka-Munk layer pass
-(:mod:`renderer.layers`). In the ``rgb`` and ``bands:N`` modes the shader composes the films per channel from the
-tables (at most :data:`renderer.layers.MAX_CHANNELS` bands, so the planner tries no more); in ``exact`` mode the stack
-is composed here, per wavelength, once for each distinct combination of thicknesses in the scene (one for uniform
-films; one per distinct texel of the thickness maps), and the shader reads the result.
-
-The scene also decides what else a frame needs (:class:`ScenePlan`): a shadow map for each light that casts shadows,
-unless nothing in the scene can shadow anything (a flat or convex product without a ground); the size of the maps;
-a ground under the product.
+The plan (:func:`kmpipe.stages.render_plan.plan_scene`, or its file read back by
+:func:`kmpipe.stages.plan_file.read_plan`) gives the render mode, the optical tables, the shadow maps and the skin's
+passes. :func:`renderer_scenes` turns the scene and its plan into the renderer's scenes
+(:class:`renderer.scene.Scene`), one per turntable angle, which the renderer's passes draw: the Kubelka-Munk layer
+pass (:func:`renderer.layers.render_layers`) or, on skin, the skin pass with subsurface scattering
+(:func:`renderer.skin.render_skin`). In the ``rgb`` and ``bands:N`` modes the shader composes the films per channel
+from the tables; in ``exact`` mode the stack is composed here, per wavelength, once for each distinct combination of
+thicknesses in the scene (one for uniform films; one per distinct texel of the thickness maps), and the shader reads
+the result.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
-import trimesh
 
 from kmpipe.errors import InputError
 from kmpipe.formats import files
 from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
 from kmpipe.formats.scene import Scene, load_scene
-from kmpipe.physics.optical_tables import Stack, exact_stack, parse_mode, working_space
-from kmpipe.stages.render_plan import RenderPlan, plan_render
+from kmpipe.physics.optical_tables import exact_stack, parse_mode, working_space
+from kmpipe.stages.render_plan import GROUND_EXTENT, SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene
+from renderer.contact_sheet import make_sheet, write_sheet
+from renderer.image_io import write_exr, write_png
+from renderer.layers import render_layers
+from renderer.meshes import card
+from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight, Prop
+from renderer.scene import Scene as RendererScene
+from renderer.skin import render_skin
+from renderer.stack import ChannelStack, LayerTable, Precomposed, Specular
+from renderer.tone_map import tone_map
 
-#: Texels of a shadow map per pixel of the longer image side, and the bounds of the map's size.
-SHADOW_TEXELS_PER_PIXEL = 2
-SHADOW_MAP_SIZES = (512, 4096)
-#: Ground half-size in radii of the product's bounding sphere.
-GROUND_EXTENT = 4.0
 #: Share of the image height the product's bounding sphere fills when the scene gives no camera distance.
 FRAME_FILL = 0.8
 
 
-@dataclass(frozen=True)
-class ScenePlan:
-    """The render plan of the optical tables plus the scene-level choices: shadows, their maps, the ground."""
+def renderer_scenes(
+    scene: Scene, plan: ScenePlan, angles_deg: Sequence[float], *, scattering: bool = True
+) -> list[RendererScene]:
+    """The renderer's scene of each turntable angle (degrees) of ``scene`` rendered as ``plan`` says.
 
-    tables: RenderPlan
-    shadow_map_size: int | None
-    shadow_lights: tuple[bool, ...]
-    notes: tuple[str, ...] = field(default=())
+    The scenes share everything but the product's model matrix (turned about the vertical through its centre by
+    the angle, clockwise seen from above): the mesh, the surface (a :class:`~renderer.stack.ChannelStack` of the
+    planned tables, or a :class:`~renderer.stack.Precomposed` stack in exact mode; built once), the films' lobes,
+    the lights with the plan's shadows, the camera looking at the centre of the placed mesh, a ground (a
+    :class:`~renderer.scene.Prop`), the skin's lobe and scattering from the plan (``scattering=False``: none).
 
-    @property
-    def mode(self) -> str:
-        return self.tables.mode
-
-    def explain(self) -> str:
-        lines = [self.tables.explain(), "Scene:"]
-        lines += [f"  {note}" for note in self.notes]
-        return "\n".join(lines)
-
-
-def can_shadow_itself(mesh: trimesh.Trimesh) -> bool:
-    """Whether some part of the mesh can hide another from a light: False for a flat or a closed convex mesh."""
-    vertices = np.asarray(mesh.vertices, dtype=float)
-    centred = vertices - vertices.mean(axis=0)
-    extent = float(np.ptp(vertices, axis=0).max())
-    flat = np.linalg.svd(centred, compute_uv=False)[-1] <= 1e-9 * max(extent, 1e-300) * math.sqrt(len(vertices))
-    if flat:
-        return False
-    welded = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=True)  # seams duplicated for uv: merged
-    return not (welded.is_watertight and welded.is_convex)
-
-
-def plan_scene(scene: Scene) -> ScenePlan:
-    """The scene's render plan: mode and tables, then shadows and the other per-frame work.
-
-    A point light inside the product's bounding sphere is refused here (InputError naming its position).
+    >>> import kmpipe, pathlib, tempfile
+    >>> from kmpipe.formats.scene import load_scene
+    >>> from kmpipe.stages.fit import fit_manifests
+    >>> from kmpipe.stages.render_plan import plan_scene
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1" / "manifest.toml"
+    >>> _ = fit_manifests([F1], folder / "F1.json")
+    >>> _ = (folder / "card.toml").write_text(
+    ...     '[scene]\\nname = "F1"\\nmode = "rgb"\\n[substrate]\\nreflectance = 0.5\\n'
+    ...     '[[layer]]\\nmaterial = "F1.json"\\nthickness = "20 um"\\n[turntable]\\nframes = 4\\n')
+    >>> scene = load_scene(folder / "card.toml")
+    >>> frames = renderer_scenes(scene, plan_scene(scene), scene.turntable_angles_deg())
+    >>> len(frames), frames[0].resolution, frames[0].stack is frames[3].stack
+    (4, (256, 256), True)
     """
-    from renderer.layers import MAX_CHANNELS
-
-    materials = {m.name: m for m in scene.materials}
-    ranges: dict[str, tuple[float, float]] = {}
-    for index, material in enumerate(scene.materials):
-        lo, hi = scene.thickness_range_mm(index)
-        old = ranges.get(material.name, (lo, hi))
-        ranges[material.name] = (min(old[0], lo), max(old[1], hi))
-    stacks = [Stack(scene.name, tuple(m.name for m in scene.materials), scene.substrate_reflectance())]
-    settings = scene.info.scene
-    tables = plan_render(
-        materials, stacks, ranges, settings.illuminant, settings.accuracy, settings.mode, max_bands=MAX_CHANNELS
-    )
-    kind, _ = parse_mode(tables.mode)
-    notes = []
-    if kind == "exact":
-        notes.append(
-            f"exact: the stack is composed per wavelength ({len(scene.wavelengths)} of them) at each distinct "
-            "combination of thicknesses in the scene; no tables reach the shader"
-        )
-    lights = scene.info.light
-    wanted = [light.shadows for light in lights]
-    self_shadowing = can_shadow_itself(scene.mesh)
-    size = None
-    if not any(wanted):
-        notes.append("shadow maps: no light casts shadows -> none made")
-    elif not (self_shadowing or scene.info.ground is not None):
-        notes.append(
-            f"shadow maps: the {scene.info.scene.mesh} mesh is flat or convex and there is no ground, so nothing "
-            "can shadow anything -> none made"
-        )
-        wanted = [False] * len(lights)
-    else:
-        longer = max(settings.resolution)
-        size = settings.shadow_map or int(
-            np.clip(2 ** math.ceil(math.log2(SHADOW_TEXELS_PER_PIXEL * longer)), *SHADOW_MAP_SIZES)
-        )
-        casters = "the product" + (" (it can shadow itself)" if self_shadowing else "")
-        notes.append(
-            f"shadow maps: {sum(wanted)} of {len(lights)} lights cast shadows of {casters}"
-            f"{' onto the ground' if scene.info.ground is not None else ''}; {size} x {size} texels, 3 x 3 PCF"
-        )
-    _check_point_lights(scene, wanted)
-    if scene.info.ground is None:
-        notes.append("ground: none")
-    lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
-    notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
-    notes += _skin_notes(scene)
-    return ScenePlan(tables, size, tuple(wanted), tuple(notes))
+    info = scene.info
+    lobes = [None if layer.specular is None else Specular(**layer.specular.model_dump()) for layer in info.layer]
+    ground = _ground(scene)
+    common = {
+        "mesh": scene.mesh,
+        "stack": _surface(scene, plan),
+        "camera": _camera(scene),
+        "lights": _lights(scene, plan),
+        "resolution": tuple(info.scene.resolution),
+        "lobes": lobes,
+        "substrate_lobe": plan.skin_lobe,
+        "scattering": plan.scattering if scattering else None,
+        "props": () if ground is None else (ground,),
+        "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
+    }
+    return [RendererScene(model=_turntable_model(scene, angle), **common) for angle in angles_deg]
 
 
-def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
-    """Refuse a point light inside the product's bounding sphere (on or in the product, at some turn of the
-    turntable, where its inverse-square falloff has no finite value), and a shadowing one inside the scene's reach
-    (its shadow map looks at the scene from outside it)."""
-    centre, radius, _ = _bounds(scene)
-    reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
-    for index, (light, casts) in enumerate(zip(scene.info.light, shadows, strict=True)):
-        if light.kind != "point":
-            continue
-        distance = float(np.linalg.norm(np.subtract(light.position, centre)))
-        if distance <= radius:
-            raise InputError(
-                f"a point light must stand outside the product: more than {radius:.3g} mm (the radius of its "
-                f"bounding sphere) from its centre {tuple(round(float(c), 1) for c in centre)}, got {distance:.3g} "
-                "mm: move it",
-                path=scene.path,
-                field=f"light[{index + 1}].position",
-            )
-        if casts and distance <= 1.05 * reach:
-            raise InputError(
-                f"a point light that casts shadows must stand outside the scene (more than {1.05 * reach:.0f} mm "
-                f"from its centre {tuple(round(float(c), 1) for c in centre)}, the product"
-                f"{' and its ground' if scene.info.ground is not None else ''}): move it, or set shadows = false",
-                path=scene.path,
-                field=f"light[{index + 1}].position",
-            )
-
-
-def _skin_notes(scene: Scene) -> list[str]:
-    skin = scene.info.skin
-    if skin is None:
-        return ["skin: none (the films lie on a substrate; no subsurface scattering)"]
-    lobe = skin_lobe(scene)
-    notes = [
-        f"skin: {skin.reflectance}; its own lobe "
-        + ("none" if lobe is None else f"roughness {lobe.roughness:g}, F0 {lobe.f0:.3f}")
-    ]
-    if skin.albedo_texture is not None:
-        notes.append(f"albedo texture: {skin.albedo_texture} (spectra per texel from the skin's; modes planned on it)")
-    scattering = skin_scattering(scene)
-    if scattering is None:
-        notes.append("subsurface scattering: off (the skin's light is not blurred)")
-    else:
-        notes.append(
-            f"subsurface scattering: 4 Gaussians x 2 separable 7-tap passes on skin pixels, alpha {scattering.alpha:g} "
-            f"(1 = the measured profile at true scale), beta {scattering.beta:g}, clamp {scattering.gradient_clamp:g}"
-        )
-    return notes
-
-
-def layer_lobes(scene: Scene) -> list:
-    """The films' specular lobes (renderer Specular or None), top first."""
-    from renderer.layers import Specular
-
-    return [None if layer.specular is None else Specular(**layer.specular.model_dump()) for layer in scene.info.layer]
-
-
-def skin_lobe(scene: Scene):
-    """The skin's own specular lobe (renderer Specular), or None."""
-    from renderer.layers import Specular
-    from renderer.skin import SKIN_SPECULAR
-
-    specular = scene.info.skin.specular
-    if specular is True:
-        return SKIN_SPECULAR
-    return None if specular is False else Specular(specular.roughness, specular.ior)
-
-
-def skin_scattering(scene: Scene, enabled: bool = True):
-    """The skin's subsurface scattering (renderer Scattering), or None when off."""
-    from renderer.skin import Scattering
-
-    scattering = scene.info.skin.scattering
-    if not enabled or scattering is False:
-        return None
-    return Scattering() if scattering is True else Scattering(**scattering.model_dump())
-
-
-def _stack_input(plan: ScenePlan, scene: Scene):
+def _surface(scene: Scene, plan: ScenePlan) -> ChannelStack | Precomposed:
     """The layer pass's stack: a ChannelStack from the planned tables, or a Precomposed stack in exact mode.
 
     With an albedo texture the substrate is a per-texel mix of three basis spectra
-    (:mod:`kmpipe.formats.albedo_texture`),
-    reduced to the mode's channels like the films.
+    (:mod:`kmpipe.formats.albedo_texture`), reduced to the mode's channels like the films.
     """
-    from renderer.layers import ChannelStack, LayerTable, Precomposed
-
     kind, _ = parse_mode(plan.mode)
     substrate = scene.substrate_reflectance()
     if kind == "exact":
@@ -244,8 +123,6 @@ def _albedo_weights(scene: Scene, albedo: np.ndarray, basis: np.ndarray, space) 
 
 def _on_grid(value: np.ndarray, rows: int, columns: int) -> np.ndarray:
     """A 2-D (or 2-D x channels) map resampled bilinearly to rows x columns (as it is if it has that size)."""
-    import cv2
-
     if value.shape[:2] == (rows, columns):
         return value
     return cv2.resize(value, (columns, rows), interpolation=cv2.INTER_LINEAR)
@@ -294,18 +171,9 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
     )
 
 
-def _bounds(scene: Scene) -> tuple[np.ndarray, float, float]:
-    """Centre (mm) and radius (mm) of the placed mesh, and its lowest world y (mm)."""
-    vertices = np.asarray(scene.mesh.vertices) @ scene.model[:3, :3].T + scene.model[:3, 3]
-    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-    return centre, float(np.max(np.linalg.norm(vertices - centre, axis=1))), float(vertices[:, 1].min())
-
-
-def camera_for(scene: Scene):
+def _camera(scene: Scene) -> OrthographicCamera | PerspectiveCamera:
     """The scene's camera, looking at the centre of the (placed) mesh."""
-    from renderer.scene import OrthographicCamera, PerspectiveCamera
-
-    centre, radius, _ = _bounds(scene)
+    centre, radius, _ = placed_bounds(scene)
     info = scene.info.camera
     azimuth, elevation = math.radians(info.azimuth_deg), math.radians(info.elevation_deg)
     direction = np.array(
@@ -328,12 +196,12 @@ def camera_for(scene: Scene):
     return PerspectiveCamera(info.fov_deg, eye=eye, target=tuple(centre), near=near, far=far)
 
 
-def turntable_model(scene: Scene, angle_deg: float) -> np.ndarray:
+def _turntable_model(scene: Scene, angle_deg: float) -> np.ndarray:
     """The product's object -> world matrix turned by ``angle_deg`` about the vertical axis through its centre.
 
     The turn is clockwise seen from above, so the camera's azimuth relative to the product grows with the angle.
     """
-    centre, _, _ = _bounds(scene)
+    centre, _, _ = placed_bounds(scene)
     turn = np.eye(4)
     c, s = math.cos(math.radians(-angle_deg)), math.sin(math.radians(-angle_deg))
     turn[0, 0], turn[0, 2], turn[2, 0], turn[2, 2] = c, s, -s, c
@@ -342,10 +210,9 @@ def turntable_model(scene: Scene, angle_deg: float) -> np.ndarray:
     return back @ turn @ shift @ scene.model
 
 
-def _lights(scene: Scene, plan: ScenePlan):
-    from renderer.scene import DirectionalLight, PointLight
-
-    centre, _, _ = _bounds(scene)
+def _lights(scene: Scene, plan: ScenePlan) -> list[DirectionalLight | PointLight]:
+    """The scene's lights, each casting shadows where the plan gives it a shadow map."""
+    centre, _, _ = placed_bounds(scene)
     lights = []
     for info, shadows in zip(scene.info.light, plan.shadow_lights, strict=True):
         if info.kind == "point":
@@ -357,14 +224,12 @@ def _lights(scene: Scene, plan: ScenePlan):
     return lights
 
 
-def _ground(scene: Scene):
-    """A square floor under the product (a Prop), or None."""
-    from renderer.layers import Prop
-    from renderer.meshes import card
-
+def _ground(scene: Scene) -> Prop | None:
+    """A square floor under the product, :data:`~kmpipe.stages.render_plan.GROUND_EXTENT` radii of its bounding
+    sphere from its centre each way, or None."""
     if scene.info.ground is None:
         return None
-    centre, radius, bottom = _bounds(scene)
+    centre, radius, bottom = placed_bounds(scene)
     side = 2.0 * GROUND_EXTENT * radius
     model = np.eye(4)
     model[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y
@@ -376,6 +241,7 @@ def render_scene(
     scene: str | Path | Scene,
     out_dir: str | Path,
     *,
+    plan: ScenePlan | None = None,
     explain: bool = False,
     scattering: bool = True,
     ab_scattering: bool = False,
@@ -384,36 +250,49 @@ def render_scene(
     echo: Callable[[str], None] = print,
     on_frame: Callable[[int, int], None] | None = None,
 ) -> list[Path]:
-    """Render every frame of a scene file into ``out_dir`` as ``frame_NNN.exr`` (linear, float) and ``.png`` (sRGB).
+    r"""Render every frame of a scene file into ``out_dir`` as ``frame_NNN.exr`` (linear, float) and ``.png`` (sRGB).
 
-    ``explain`` passes the plan's text to ``echo``; ``on_frame(i, n)`` is called after frame i of n. The PNG is
-    tone mapped as the scene's ``[output]`` says; the EXR keeps the linear render. On skin, ``scattering=False``
-    turns subsurface scattering off, and ``ab_scattering`` renders every frame without it as well (into
-    ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below, thesis figure 5.58). ``frames``
-    renders only those frames of the turntable (indices); ``header`` adds attributes to every frame's EXR header.
-    Returns the files written, EXR and PNG of each frame in order (then the A/B frames and sheet).
+    ``plan`` renders as that plan of the scene says (e.g. its plan file read back,
+    :func:`kmpipe.stages.plan_file.read_plan`) without planning again; by default the scene is planned
+    (:func:`kmpipe.stages.render_plan.plan_scene`). ``explain`` passes the plan's text to ``echo``; ``on_frame(i,
+    n)`` is called after frame i of n. The PNG is tone mapped as the scene's ``[output]`` says; the EXR keeps the
+    linear render. On skin, ``scattering=False`` turns subsurface scattering off, and ``ab_scattering`` renders every
+    frame without it as well (into ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below,
+    thesis figure 5.58). ``frames`` renders only those frames of the turntable (indices); ``header`` adds attributes
+    to every frame's EXR header. Returns the files written, EXR and PNG of each frame in order (then the A/B frames
+    and sheet).
+
+    >>> import kmpipe, pathlib, tempfile, numpy as np
+    >>> from kmpipe.stages.fit import fit_manifests
+    >>> from renderer.image_io import read_exr
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = fit_manifests([F1 / "manifest.toml"], folder / "F1.json", method="black-white")
+    >>> _ = (folder / "scene.toml").write_text(
+    ...     '[scene]\nname = "F1 on a card"\nmesh = "card"\nresolution = [32, 32]\n'
+    ...     '[substrate]\nreflectance = 0.8\n[[layer]]\nmaterial = "F1.json"\nthickness = "30 um"\n'
+    ...     '[[light]]\ndirection = [0, 0, 1]\n[camera]\nelevation_deg = 0.0\nprojection = "orthographic"\n')
+    >>> written = render_scene(folder / "scene.toml", folder / "out", echo=lambda text: None)
+    >>> [path.name for path in written]
+    ['frame_000.exr', 'frame_000.png']
+    >>> image, header = read_exr(written[0])
+    >>> image.shape, header["product"], header["illuminant"], bool(np.isfinite(image).all() and image.max() > 0)
+    ((32, 32, 3), 'F1 on a card', 'D65', True)
     """
-    from renderer.layers import render_layers
-    from renderer.skin import render_skin
-
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
-    if ab_scattering and (scene.info.skin is None or skin_scattering(scene) is None):
+    info = scene.info
+    on_skin = info.skin is not None
+    if ab_scattering and not (on_skin and info.skin.scattering is not False):
         raise InputError(
             "--ab-sss compares renders with and without subsurface scattering: the scene needs [skin] with its "
             "scattering on",
             path=scene.path,
             field="skin.scattering",
         )
-    plan = plan_scene(scene)
+    plan = plan_scene(scene) if plan is None else plan
     if explain:
         echo(plan.explain())
-    stack = _stack_input(plan, scene)
-    info = scene.info
-    specular = layer_lobes(scene)
-    lights, camera = _lights(scene, plan), camera_for(scene)
-    ground = _ground(scene)
-    width, height = info.scene.resolution
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     header = {
@@ -432,42 +311,30 @@ def render_scene(
         "camera_elevation_deg": float(info.camera.elevation_deg),
         "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
     }
-    on_skin = info.skin is not None
-    blur = skin_scattering(scene, scattering) if on_skin else None
+    blur = plan.scattering if scattering else None
     header["subsurface_scattering"] = (
         "none (no skin)" if not on_skin else "off" if blur is None
         else f"alpha {blur.alpha:g}, beta {blur.beta:g}, clamp {blur.gradient_clamp:g}"
     )  # fmt: skip
-    variants = [(out_dir, blur)]
+    folders = [out_dir]
     if ab_scattering:
-        variants.append((files.output_folder(files.within(out_dir, "no_sss"), field="--ab-sss"), None))
-    written = []
+        folders.append(files.output_folder(files.within(out_dir, "no_sss"), field="--ab-sss"))
     angles = scene.turntable_angles_deg()
     chosen = range(len(angles)) if frames is None else list(frames)
-    outputs = [folder / f"frame_{i:03d}.{ext}" for folder, _ in variants for i in chosen for ext in ("exr", "png")]
+    outputs = [folder / f"frame_{i:03d}.{ext}" for folder in folders for i in chosen for ext in ("exr", "png")]
     for output in [*outputs, *([out_dir / "ab_sss.png"] if ab_scattering else [])]:
         files.refuse_inputs(output, scene.inputs, field="-o")
-    for done, i in enumerate(chosen):
-        angle = angles[i]
-        common = {
-            "specular": specular,
-            "model": turntable_model(scene, angle),
-            "props": [ground] if ground is not None else [],
-            "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
-        }
-        for folder, variant in variants:
-            if on_skin:
-                image = render_skin(
-                    scene.mesh, camera, lights, stack, width, height,
-                    scattering=variant, skin_specular=skin_lobe(scene), **common,
-                )  # fmt: skip
-            else:
-                image = render_layers(scene.mesh, camera, lights, stack, width, height, **common)
+    render = render_skin if on_skin else render_layers
+    written = []
+    scenes = renderer_scenes(scene, plan, [angles[i] for i in chosen], scattering=scattering)
+    for done, (i, frame) in enumerate(zip(chosen, scenes, strict=True)):
+        for folder in folders:
+            image = render(frame if folder == out_dir else dataclasses.replace(frame, scattering=None))
             exr, png = folder / f"frame_{i:03d}.exr", folder / f"frame_{i:03d}.png"
             frame_header = {
                 **header,
-                "camera_azimuth_deg": float((info.camera.azimuth_deg + angle) % 360.0),
-                "turntable_deg": float(angle),
+                "camera_azimuth_deg": float((info.camera.azimuth_deg + angles[i]) % 360.0),
+                "turntable_deg": float(angles[i]),
                 "frame": i,
             }
             if folder != out_dir:
@@ -489,9 +356,6 @@ def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) 
     last, so an exit at any moment leaves no EXR (what caches and readers look for) without its PNG. A frame with
     NaN or infinite pixels is a renderer bug: RuntimeError, and nothing is written for it.
     """
-    from renderer.image_io import write_exr, write_png
-    from renderer.tone_map import tone_map
-
     bad = int(np.count_nonzero(~np.isfinite(image)))
     if bad:
         raise RuntimeError(f"the renderer gave {bad} NaN or infinite values for {exr}; nothing was written for it")
@@ -503,8 +367,6 @@ def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) 
 
 def _ab_sheet(out_dir: Path, scene: Scene, frames: int) -> Path:
     """``ab_sss.png``: up to 4 frames with subsurface scattering (top row) and without (bottom row)."""
-    from renderer.contact_sheet import make_sheet, write_sheet
-
     picks = [round(i * frames / min(frames, 4)) for i in range(min(frames, 4))]
     paths = [out_dir / f"frame_{i:03d}.exr" for i in picks] + [out_dir / "no_sss" / f"frame_{i:03d}.exr" for i in picks]
     angles = scene.turntable_angles_deg()

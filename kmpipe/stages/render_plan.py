@@ -1,20 +1,29 @@
-"""Render plan: which optical tables a scene needs, in which render mode, and how large.
+"""The render plan stage: which optical tables a scene needs, in which render mode, and what else its frames need.
 
-The plan lists the materials, stacks and thickness ranges (mm) in use; picks the cheapest render mode, in the
-order rgb, bands:3, bands:6, bands:9, ... (N below the number of wavelengths), exact, whose largest Delta E 2000
-against the exact spectral result on the scene's own stacks (:func:`kmpipe.physics.optical_tables.mode_error`) is within
-the accuracy target; sizes each thickness axis so that linear interpolation adds at most
-:data:`INTERPOLATION_FRACTION` of the target; and drops what the scene does not need.
+:func:`plan_render` lists the materials, stacks and thickness ranges (mm) in use; picks the cheapest render mode, in
+the order rgb, bands:3, bands:6, bands:9, ... (N below the number of wavelengths), exact, whose largest Delta E 2000
+against the exact spectral result on the scene's own stacks (:func:`kmpipe.physics.optical_tables.mode_error`) is
+within the accuracy target; sizes each thickness axis so that linear interpolation adds at most
+:data:`INTERPOLATION_FRACTION` of the target; and drops what the scene does not need. :func:`plan_scene` plans a
+render scene (:mod:`kmpipe.formats.scene`) that way, on its one stack (at most
+:data:`renderer.stack.MAX_CHANNELS` bands, what the layer pass composes), and decides the rest of its frames
+(:class:`ScenePlan`): a shadow map for each light that casts shadows, unless nothing in the scene can shadow
+anything (a flat or convex product without a ground); the size of the maps; the skin's lobe and its subsurface
+scattering, or none. Its plan file is :mod:`kmpipe.stages.plan_file`.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import colour
 import numpy as np
+import trimesh
 
+from kmpipe.errors import InputError
+from kmpipe.formats.scene import Scene
 from kmpipe.physics.optical_tables import (
     FilmCoefficients,
     OpticalTable,
@@ -25,6 +34,8 @@ from kmpipe.physics.optical_tables import (
     parse_mode,
     working_space,
 )
+from renderer.scene import Scattering
+from renderer.stack import MAX_CHANNELS, SKIN_SPECULAR, Specular
 
 #: Delta E 2000 target (worst case over the scene's stacks) when the caller gives none; about 1/2 of a just noticeable
 #: difference, so a studio can composite renders of one shade next to each other without seeing the mode.
@@ -33,6 +44,11 @@ DEFAULT_TARGET_DE = 0.5
 INTERPOLATION_FRACTION = 0.25
 #: Largest thickness axis the planner will propose (2^8 + 1 samples).
 MAX_SAMPLES = 257
+#: Texels of a shadow map per pixel of the longer image side, and the bounds of the map's size.
+SHADOW_TEXELS_PER_PIXEL = 2
+SHADOW_MAP_SIZES = (512, 4096)
+#: Ground half-size in radii of the product's bounding sphere.
+GROUND_EXTENT = 4.0
 
 
 @dataclass(frozen=True)
@@ -241,3 +257,195 @@ def plan_render(
         tuple(tables),
         tuple(dropped),
     )
+
+
+@dataclass(frozen=True)
+class ScenePlan:
+    """The render plan of a scene: its optical tables, then the scene-level choices: shadows and their maps, the skin's
+    passes.
+
+    Attributes
+    ----------
+    tables
+        The plan of the optical tables (:func:`plan_render`).
+    shadow_map_size
+        Texels per side of each shadow map, or None when no map is made.
+    shadow_lights
+        Whether each light of the scene (in its order) gets a shadow map.
+    skin_lobe
+        The skin's own specular lobe, or None (no lobe, or no skin).
+    scattering
+        The skin's subsurface scattering, or None (off, or no skin).
+    notes
+        What the plan decided beyond the tables and why, one line each (see :meth:`explain`).
+    """
+
+    tables: RenderPlan
+    shadow_map_size: int | None
+    shadow_lights: tuple[bool, ...]
+    skin_lobe: Specular | None = None
+    scattering: Scattering | None = None
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def mode(self) -> str:
+        return self.tables.mode
+
+    def explain(self) -> str:
+        """What ``kmpipe render --explain`` prints: the tables' plan (:meth:`RenderPlan.explain`), then the notes."""
+        lines = [self.tables.explain(), "Scene:"]
+        lines += [f"  {note}" for note in self.notes]
+        return "\n".join(lines)
+
+
+def placed_bounds(scene: Scene) -> tuple[np.ndarray, float, float]:
+    """Centre (mm) and radius (mm) of the bounding sphere of the scene's mesh as placed by its model matrix (centred on
+    its bounding box), and its lowest world y (mm)."""
+    vertices = np.asarray(scene.mesh.vertices) @ scene.model[:3, :3].T + scene.model[:3, 3]
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return centre, float(np.max(np.linalg.norm(vertices - centre, axis=1))), float(vertices[:, 1].min())
+
+
+def can_shadow_itself(mesh: trimesh.Trimesh) -> bool:
+    """Whether some part of the mesh can hide another from a light: False for a flat or a closed convex mesh."""
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    centred = vertices - vertices.mean(axis=0)
+    extent = float(np.ptp(vertices, axis=0).max())
+    flat = np.linalg.svd(centred, compute_uv=False)[-1] <= 1e-9 * max(extent, 1e-300) * math.sqrt(len(vertices))
+    if flat:
+        return False
+    welded = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=True)  # seams duplicated for uv: merged
+    return not (welded.is_watertight and welded.is_convex)
+
+
+def plan_scene(scene: Scene) -> ScenePlan:
+    r"""The scene's render plan: mode and tables, then shadows, the skin's passes and the other per-frame work.
+
+    A point light inside the product's bounding sphere is refused here (InputError naming its position).
+
+    >>> import kmpipe, pathlib, tempfile
+    >>> from kmpipe.formats.scene import load_scene
+    >>> from kmpipe.stages.fit import fit_manifests
+    >>> F1 = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "samples" / "F1"  # bundled example
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = fit_manifests([F1 / "manifest.toml"], folder / "F1.json", method="black-white")
+    >>> _ = (folder / "card.toml").write_text(
+    ...     '[scene]\nname = "F1"\naccuracy = 0.5\n[substrate]\nreflectance = 0.5\n'
+    ...     '[[layer]]\nmaterial = "F1.json"\nthickness = "20 um"\n')
+    >>> plan = plan_scene(load_scene(folder / "card.toml"))
+    >>> chosen = next(c for c in plan.tables.candidates if c.mode == plan.mode)  # the cheapest within the target
+    >>> bool(chosen.max_dE <= 0.5), plan.mode in [c.mode for c in plan.tables.candidates]
+    (True, True)
+    """
+    materials = {m.name: m for m in scene.materials}
+    ranges: dict[str, tuple[float, float]] = {}
+    for index, material in enumerate(scene.materials):
+        lo, hi = scene.thickness_range_mm(index)
+        old = ranges.get(material.name, (lo, hi))
+        ranges[material.name] = (min(old[0], lo), max(old[1], hi))
+    stacks = [Stack(scene.name, tuple(m.name for m in scene.materials), scene.substrate_reflectance())]
+    settings = scene.info.scene
+    tables = plan_render(
+        materials, stacks, ranges, settings.illuminant, settings.accuracy, settings.mode, max_bands=MAX_CHANNELS
+    )
+    kind, _ = parse_mode(tables.mode)
+    notes = []
+    if kind == "exact":
+        notes.append(
+            f"exact: the stack is composed per wavelength ({len(scene.wavelengths)} of them) at each distinct "
+            "combination of thicknesses in the scene; no tables reach the shader"
+        )
+    lights = scene.info.light
+    wanted = [light.shadows for light in lights]
+    self_shadowing = can_shadow_itself(scene.mesh)
+    size = None
+    if not any(wanted):
+        notes.append("shadow maps: no light casts shadows -> none made")
+    elif not (self_shadowing or scene.info.ground is not None):
+        notes.append(
+            f"shadow maps: the {scene.info.scene.mesh} mesh is flat or convex and there is no ground, so nothing "
+            "can shadow anything -> none made"
+        )
+        wanted = [False] * len(lights)
+    else:
+        longer = max(settings.resolution)
+        size = settings.shadow_map or int(
+            np.clip(2 ** math.ceil(math.log2(SHADOW_TEXELS_PER_PIXEL * longer)), *SHADOW_MAP_SIZES)
+        )
+        casters = "the product" + (" (it can shadow itself)" if self_shadowing else "")
+        notes.append(
+            f"shadow maps: {sum(wanted)} of {len(lights)} lights cast shadows of {casters}"
+            f"{' onto the ground' if scene.info.ground is not None else ''}; {size} x {size} texels, 3 x 3 PCF"
+        )
+    _check_point_lights(scene, wanted)
+    if scene.info.ground is None:
+        notes.append("ground: none")
+    lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
+    notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
+    skin_lobe, scattering = _skin_lobe(scene), _skin_scattering(scene)
+    notes += _skin_notes(scene, skin_lobe, scattering)
+    return ScenePlan(tables, size, tuple(wanted), skin_lobe, scattering, tuple(notes))
+
+
+def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
+    """Refuse a point light inside the product's bounding sphere (on or in the product, at some turn of the
+    turntable, where its inverse-square falloff has no finite value), and a shadowing one inside the scene's reach
+    (its shadow map looks at the scene from outside it)."""
+    centre, radius, _ = placed_bounds(scene)
+    reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
+    for index, (light, casts) in enumerate(zip(scene.info.light, shadows, strict=True)):
+        if light.kind != "point":
+            continue
+        distance = float(np.linalg.norm(np.subtract(light.position, centre)))
+        if distance <= radius:
+            raise InputError(
+                f"a point light must stand outside the product: more than {radius:.3g} mm (the radius of its "
+                f"bounding sphere) from its centre {tuple(round(float(c), 1) for c in centre)}, got {distance:.3g} "
+                "mm: move it",
+                path=scene.path,
+                field=f"light[{index + 1}].position",
+            )
+        if casts and distance <= 1.05 * reach:
+            raise InputError(
+                f"a point light that casts shadows must stand outside the scene (more than {1.05 * reach:.0f} mm "
+                f"from its centre {tuple(round(float(c), 1) for c in centre)}, the product"
+                f"{' and its ground' if scene.info.ground is not None else ''}): move it, or set shadows = false",
+                path=scene.path,
+                field=f"light[{index + 1}].position",
+            )
+
+
+def _skin_lobe(scene: Scene) -> Specular | None:
+    """The skin's own specular lobe (its default: :data:`renderer.stack.SKIN_SPECULAR`), or None."""
+    specular = None if scene.info.skin is None else scene.info.skin.specular
+    if specular is True:
+        return SKIN_SPECULAR
+    return None if specular is None or specular is False else Specular(specular.roughness, specular.ior)
+
+
+def _skin_scattering(scene: Scene) -> Scattering | None:
+    """The skin's subsurface scattering, or None when it is off (or there is no skin)."""
+    scattering = None if scene.info.skin is None else scene.info.skin.scattering
+    if scattering is None or scattering is False:
+        return None
+    return Scattering() if scattering is True else Scattering(**scattering.model_dump())
+
+
+def _skin_notes(scene: Scene, lobe: Specular | None, scattering: Scattering | None) -> list[str]:
+    skin = scene.info.skin
+    if skin is None:
+        return ["skin: none (the films lie on a substrate; no subsurface scattering)"]
+    notes = [
+        f"skin: {skin.reflectance}; its own lobe "
+        + ("none" if lobe is None else f"roughness {lobe.roughness:g}, F0 {lobe.f0:.3f}")
+    ]
+    if skin.albedo_texture is not None:
+        notes.append(f"albedo texture: {skin.albedo_texture} (spectra per texel from the skin's; modes planned on it)")
+    if scattering is None:
+        notes.append("subsurface scattering: off (the skin's light is not blurred)")
+    else:
+        notes.append(
+            f"subsurface scattering: 4 Gaussians x 2 separable 7-tap passes on skin pixels, alpha {scattering.alpha:g} "
+            f"(1 = the measured profile at true scale), beta {scattering.beta:g}, clamp {scattering.gradient_clamp:g}"
+        )
+    return notes

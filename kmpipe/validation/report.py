@@ -1,6 +1,6 @@
 """What people read after validation: a self-contained HTML page per sample, and an index of a batch.
 
-:func:`write_sample_report` writes ``validation.json`` (see :func:`kmpipe.validation.checks.report_to_dict`) and
+:func:`write_sample_report` writes ``validation.json`` (see :func:`kmpipe.validation.findings.report_to_dict`) and
 ``report.html``: a header with the verdict, the findings, a table of the measurements with the cells over
 the thresholds marked, and three figures (measured vs predicted reflectance with residuals, K and S with
 their standard errors, colour swatches). :func:`write_index` writes ``index.html`` and ``summary.json``
@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 from kmpipe.formats.atomic_write import write_text_atomically
 from kmpipe.physics.colorimetry import reflectance_to_sRGB
 from kmpipe.physics.flags import Flag
-from kmpipe.validation.checks import SEVERITIES, SampleReport, format_ranges, report_to_dict
+from kmpipe.validation.findings import SEVERITIES, SampleReport, format_ranges, report_to_dict
 
 DPI = 100
 SPECTRA_SIZE = (9.0, 7.0)  # inches

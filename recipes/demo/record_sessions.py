@@ -15,7 +15,7 @@ It writes ``sessions/S.jsonl`` next to this script: the session log (every byte 
 replays and fits. A log is written only if the session completed (exit status 0, ``reflectance.csv`` written, one
 reading per position of the plan); otherwise the script stops and leaves the old log alone.
 
-These logs are recordings of the EMULATED instrument (``instruments/cs2000/emulator.py``) measuring SIMULATED
+These logs are recordings of the EMULATED instrument (``instruments/cs2000/emulator/``) measuring SIMULATED
 samples (``recipes/samples/simulate_samples.py`` writes their reflectances), not of a real CS-2000 or real cosmetics.
 """
 
@@ -33,8 +33,8 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT))  # run as a script: import kmpipe and instruments from this checkout
 
-from instruments.cs2000.emulator import Emulator  # noqa: E402
 from kmpipe.cli import main  # noqa: E402
+from kmpipe.formats.emulator_script import emulator_from_script  # noqa: E402
 
 SAMPLES = ("F1", "F2", "B1", "L1", "L2")
 TIME_SCALE = 0.01  # 1 instrument second = 10 ms
@@ -47,7 +47,7 @@ def record(sample: str) -> None:
     with tempfile.TemporaryDirectory(prefix=f"kmpipe-demo-{sample}-") as tmp:
         folder, new_log = Path(tmp) / sample, Path(tmp) / "session.jsonl"
         stderr = io.StringIO()
-        with Emulator.from_script(script, time_scale=TIME_SCALE) as emulator:
+        with emulator_from_script(script, time_scale=TIME_SCALE) as emulator:
             argv = ["measure", str(plan), "--port", emulator.port, "--record", str(new_log), "-o", str(folder)]
             with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
                 status = main([*argv, "--unattended"])

@@ -1,14 +1,15 @@
 """Regenerate the bundled example samples: SIMULATED drawdown measurements of cosmetic films.
 
-No public set of cosmetic drawdowns over black and white backings exists, so the examples are simulated:
+No public set of cosmetic drawdowns over black and white backings exists, so the examples are simulated (pigments,
+mixtures and cards from ``simulated_drawdowns.py`` beside this file, which the benchmarks and tests share):
 
 - K and S of each product are Duncan mixtures (K = sum c_i K_i, S = sum c_i S_i) of real pigments from the
   RIT Artist Paint Spectral Database (``shared/data/pigments/rit_golden_acrylic_ks.csv``), interpolated to
   1 nm; that table's S is relative, so both are scaled by ``PER_MM`` to plausible per-mm values (a 20 um
   foundation film hides about half of a black backing, as real medium-coverage foundations do).
-- Readings are what a CS-2000 at 1 nm would record under CIE D55: radiance = D55 x reflectance x gain,
-  plus a dark offset, with noise of the size the Kimera paint repeats show (``shared/data/paints``:
-  about 0.6 % of the reading, repeat to repeat).
+- Readings are what a CS-2000 at 1 nm would record under CIE D55: radiance = D55 x reflectance x gain
+  (thesis eq. 4.3, the light scaled by the gain), plus a dark offset, with noise of the size the Kimera paint
+  repeats show (``shared/data/paints``: about 0.6 % of the reading, repeat to repeat).
 - Backings are a black card (~0.035) and a white card (~0.78-0.86) with gentle spectral slopes.
 
 Each sample also gets what it takes to measure it again with the CS-2000 emulator (``kmpipe emulate``): the
@@ -21,19 +22,19 @@ deterministic (fixed seeds); the true K and S are written beside each sample as 
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import colour
 import numpy as np
+from simulated_drawdowns import cards, rit_pigments
 
-from kmpipe.formats.spectra import SpectralTable, uniform_grid, write_spectra_csv
+from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
+from kmpipe.formats.spectral_grid import uniform_grid
 from kmpipe.physics.joint_fit import predict_readings
 from kmpipe.physics.white import baso4_typical
 
 HERE = Path(__file__).resolve().parent
-PIGMENTS = HERE.parents[2] / "shared" / "data" / "pigments" / "rit_golden_acrylic_ks.csv"
 WAVELENGTHS = uniform_grid(380, 780, 1)
 PER_MM = 60.0  # relative RIT units -> 1/mm
 GAIN = 0.0105  # W sr-1 m-2 nm-1 per unit of relative D55 power (D55 ~100 at 560 nm) and unit reflectance
@@ -87,26 +88,6 @@ SAMPLES = {
 }
 
 
-def read_pigments() -> dict[str, dict[str, np.ndarray]]:
-    """{pigment: {'K': (n,), 'S': (n,)}} on WAVELENGTHS (linear interpolation, 750 nm value held to 780)."""
-    with open(PIGMENTS, encoding="utf-8") as handle:
-        rows = list(csv.reader(line for line in handle if not line.startswith("#")))
-    grid = np.array([float(v) for v in rows[0][3:]])
-    out: dict[str, dict[str, np.ndarray]] = {}
-    for row in rows[1:]:
-        values = np.array([float(v) for v in row[3:]])
-        out.setdefault(row[0], {})[row[2]] = np.interp(WAVELENGTHS, grid, values)
-    return out
-
-
-def backings() -> dict[str, np.ndarray]:
-    x = (WAVELENGTHS - 380.0) / 400.0
-    return {
-        "black": 0.035 + 0.006 * x,
-        "white": 0.78 + 0.08 * (1.0 - np.exp(-(WAVELENGTHS - 380.0) / 60.0)),
-    }
-
-
 def header(sample: str, what: str, serial: str) -> dict[str, str]:
     return {
         "quantity": "radiance",
@@ -120,16 +101,16 @@ def header(sample: str, what: str, serial: str) -> dict[str, str]:
     }
 
 
-def write_emulator_files(folder: Path, name: str, spec: dict, cards: dict, K: np.ndarray, S: np.ndarray) -> None:
+def write_emulator_files(folder: Path, name: str, spec: dict, backings: dict, K: np.ndarray, S: np.ndarray) -> None:
     """plan.toml, emulator.toml and emulator_reflectance.csv for measuring this sample with the emulator."""
-    columns = {"baso4": baso4_typical(WAVELENGTHS), "black_card": cards["black"], "white_card": cards["white"]}
+    columns = {"baso4": baso4_typical(WAVELENGTHS), "black_card": backings["black"], "white_card": backings["white"]}
     columns["masstone"] = predict_readings(K, S, np.array([np.inf]), np.zeros((1, WAVELENGTHS.size)))[0]
     sequence = ["baso4", "black_card", "white_card", "masstone"]
     films = []
     for um in spec["thicknesses_um"]:
         for over in ("black", "white"):
             column = f"film_{um}um_over_{over}"
-            columns[column] = predict_readings(K, S, np.array([um / 1000.0]), cards[over][None, :])[0]
+            columns[column] = predict_readings(K, S, np.array([um / 1000.0]), backings[over][None, :])[0]
             sequence.append(column)
             films.append(f'[[film]]\nover = "{over}"\nthickness = "{um} um"\n')
     metadata = {
@@ -156,14 +137,13 @@ def write_emulator_files(folder: Path, name: str, spec: dict, cards: dict, K: np
 
 
 def main() -> None:
-    pigments = read_pigments()
+    pigments = rit_pigments().on(WAVELENGTHS)
     d55 = colour.SDS_ILLUMINANTS["D55"].copy().align(colour.SpectralShape(380, 780, 1)).values
     light = GAIN * d55
-    cards = backings()
+    backings = cards(WAVELENGTHS)
     for index, (name, spec) in enumerate(SAMPLES.items()):
         rng = np.random.default_rng(1000 + index)
-        K = PER_MM * sum(c * pigments[p]["K"] for p, c in spec["mix"].items())
-        S = PER_MM * sum(c * pigments[p]["S"] for p, c in spec["mix"].items())
+        K, S = pigments.mixture(spec["mix"], PER_MM)
 
         def measure(reflectance: np.ndarray, rng: np.random.Generator = rng) -> np.ndarray:
             signal = light * reflectance
@@ -190,7 +170,7 @@ def main() -> None:
                 WAVELENGTHS,
                 None,
                 ("black", "white"),
-                np.array([measure(cards["black"]), measure(cards["white"])]),
+                np.array([measure(backings["black"]), measure(backings["white"])]),
                 header(name, "bare black and white backings of the drawdown card", serial),
             ),
             folder / "backings.csv",
@@ -200,7 +180,7 @@ def main() -> None:
             for over in ("black", "white"):
                 columns.append(f"film_{um}um_over_{over}")
                 thickness.append(um / 1000.0)
-                grounds.append(cards[over])
+                grounds.append(backings[over])
         reflectance = predict_readings(K, S, np.array(thickness), np.array(grounds))
         write_spectra_csv(
             SpectralTable(
@@ -242,7 +222,7 @@ def main() -> None:
             + "\n",
             encoding="utf-8",
         )
-        write_emulator_files(folder, name, spec, cards, K, S)
+        write_emulator_files(folder, name, spec, backings, K, S)
         print(f"wrote {folder}")
 
 

@@ -4,7 +4,7 @@
 // Diffuse part. Up to 4 layers, listed bottom-up (layer 0 lies on the substrate). For each layer the fragment looks
 // up the reflectance R0 and transmittance T of the film at its thickness X (mm) in an optical table, interpolating
 // linearly between thickness samples and clamping at the ends, then composes it onto the reflectance Rg of
-// everything beneath it (thesis eq. 3.13):  Rg <- R0 + T^2 Rg / (1 - R0 Rg).
+// everything beneath it (thesis eq. 3.14; the thesis prints T2 where R2 belongs):  Rg <- R0 + T^2 Rg / (1 - R0 Rg).
 // The substrate is uniform (u_substrate) or varies over uv (an albedo texture): then its channels are a mix of three
 // basis reflectances with weights read from u_substrate_map, clamped to [0, 1].
 // Channels are rgb (3) or spectral bands (up to MAX_CHANNELS), processed four at a time as vec4 groups; the

@@ -4,7 +4,7 @@
 // A 7-tap Gaussian along u_direction (1, 0) or (0, 1) of the skin irradiance u_source, restricted to skin pixels
 // (the skin mask rides in u_source's alpha, 1 on skin, so that a tap is one texture fetch). The taps lie at k / 3 of the kernel's reach w (pixels), k = -3 .. 3, with weights 0.006,
 // 0.061, 0.242, 0.382, 0.242, 0.061, 0.006 (a Gaussian of standard deviation w / 3 sampled at -3 .. 3 deviations).
-// The reach follows the stretch S of eqs. 3.1 and 3.2:
+// The reach follows the stretch S of thesis eq. 3.1 and thesis eq. 3.2:
 //   S = alpha / (d + beta * min(|grad d|, clamp)),   w = 3 * width * S * c
 // with width = sqrt(v_i - v_(i-1)) (mm) the widening of this Gaussian of the skin profile, d the view depth in metres
 // (1 for an orthographic camera), grad d its larger change to either neighbour along the pass's direction

@@ -43,8 +43,10 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 sys.path.insert(0, str(ROOT))  # run as a script: import kmpipe and instruments from this checkout
 
-from instruments.cs2000.emulator import Emulator, Fault, Measurement  # noqa: E402
+from instruments.cs2000.emulator.faults import Fault  # noqa: E402
+from instruments.cs2000.emulator.instrument import Measurement  # noqa: E402
 from kmpipe.cli import main  # noqa: E402
+from kmpipe.formats.emulator_script import emulator_from_script  # noqa: E402
 from kmpipe.formats.spectra import read_spectra_csv  # noqa: E402
 
 PLAN = ROOT / "recipes" / "samples" / "F1" / "plan.toml"
@@ -129,7 +131,7 @@ def record(name: str, scenario: Scenario) -> None:
         new_log = Path(tmp) / "session.jsonl"
         stderr = io.StringIO()
         started = time.monotonic()
-        with Emulator.from_script(SCRIPT, time_scale=TIME_SCALE, faults=scenario.faults) as emulator:
+        with emulator_from_script(SCRIPT, time_scale=TIME_SCALE, faults=scenario.faults) as emulator:
             argv = ["measure", str(PLAN), "--port", emulator.port, "--record", str(new_log), "-o", str(folder)]
             with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):  # progress lines
                 status = main([*argv, "--unattended"])

@@ -1,0 +1,138 @@
+"""Where ``kmpipe run``'s tasks run: in this process, on a pool of spawned processes, or on a Dask cluster."""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import multiprocessing
+import re
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from kmpipe.errors import InputError
+from kmpipe.formats.files import within
+
+
+def call_task(function: Callable[..., dict], kwargs: dict, root: str | None = None, paths: Sequence[str] = ()) -> dict:
+    """Run a task function; a bad input comes back as data (an InputError's fields do not survive pickling).
+
+    ``paths`` (under the output folder ``root``) are checked again first, where the task runs, right before it
+    writes: a symlink made since planning that leads out of the output folder is refused.
+    """
+    try:
+        for path in paths:
+            within(Path(root), path, field="-o")
+        return function(**kwargs)
+    except InputError as err:
+        return {"input_error": {"message": err.message, "path": None if err.path is None else str(err.path),
+                                "line": err.line, "field": err.field}}  # fmt: skip
+
+
+class _InProcess:
+    """Runs tasks in this process (its GL context is this process's), one each time it is waited on, so that each
+    task is recorded before the next one starts."""
+
+    #: Tasks handed out at a time.
+    capacity = 1
+
+    def __init__(self) -> None:
+        self.queue: collections.deque = collections.deque()
+
+    def submit(self, function, *args):
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        self.queue.append((future, function, args))
+        return future
+
+    def wait(self, futures):
+        """Run the first task submitted (``futures`` holds it); it is done."""
+        future, function, args = self.queue.popleft()
+        try:
+            future.set_result(function(*args))
+        except Exception as err:  # handed to the caller through the future
+            future.set_exception(err)
+        return {future}, set(futures) - {future}
+
+    def close(self) -> None:
+        self.queue.clear()
+
+
+class _Pool:
+    """A pool of spawned worker processes (a fork after a GL context exists hangs)."""
+
+    def __init__(self, workers: int) -> None:
+        context = multiprocessing.get_context("spawn")
+        self.pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
+        self.capacity = 2 * workers
+
+    def submit(self, function, *args):
+        return self.pool.submit(function, *args)
+
+    @staticmethod
+    def wait(futures):
+        return concurrent.futures.wait(futures, return_when=concurrent.futures.FIRST_COMPLETED)
+
+    def close(self) -> None:
+        self.pool.shutdown()
+
+
+class _Dask:
+    """A Dask distributed client: of the scheduler at ``address``, or of a local cluster of ``workers`` processes."""
+
+    def __init__(self, address: str | None, workers: int) -> None:
+        from distributed import Client, LocalCluster
+
+        self.cluster = None
+        if address is None:
+            self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        try:
+            self.client = Client(address or self.cluster.scheduler_address, timeout=10)
+        except Exception as err:  # whatever Dask raises, the address is what to fix
+            if self.cluster is not None:
+                self.cluster.close()
+            raise InputError(f"cannot connect to the Dask scheduler at {address or 'the local cluster'}: "
+                             f"{type(err).__name__}: {err}", field="--scheduler") from None  # fmt: skip
+        self.capacity = 2 * max(workers, sum(self.client.nthreads().values()))
+
+    def submit(self, function, *args):
+        return self.client.submit(function, *args, pure=False)
+
+    @staticmethod
+    def wait(futures):
+        from distributed import wait
+
+        return wait(futures, return_when="FIRST_COMPLETED")
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+#: Addresses of a Dask scheduler: tcp://HOST:PORT, tls://HOST:PORT, HOST:PORT (tcp), inproc://...; HOST a name, an
+#: IPv4 address or an [IPv6] address.
+SCHEDULER = re.compile(
+    r"(?:(?:tcp|tls)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?):(?P<port>[0-9]{1,5})"
+    r"|inproc://[^\s/]+(?:/[^\s/]+)*"
+)
+
+
+def check_executor(kind: str, workers: int, scheduler: str | None) -> None:
+    """Refuse an executor, a number of workers or a scheduler address that cannot work (InputError naming it)."""
+    if kind not in ("local", "dask"):
+        raise InputError(f"is {kind!r}; expected local or dask", field="--executor")
+    if workers < 1:
+        raise InputError(f"is {workers}; expected at least 1 worker", field="--workers")
+    if scheduler is None:
+        return
+    if kind != "dask":
+        raise InputError("--scheduler needs --executor dask", field="--scheduler")
+    found = SCHEDULER.fullmatch(scheduler)
+    if found is None or (found["port"] is not None and not 0 < int(found["port"]) < 65536):
+        raise InputError(f"is {scheduler!r}; expected the address of a Dask scheduler: tcp://HOST:PORT, "
+                         "tls://HOST:PORT, HOST:PORT or inproc://...", field="--scheduler")  # fmt: skip
+
+
+def make_executor(kind: str, workers: int, scheduler: str | None):
+    if kind == "dask":
+        return _Dask(scheduler, workers)
+    return _InProcess() if workers <= 1 else _Pool(workers)

@@ -1,0 +1,390 @@
+"""Planning ``kmpipe run``: a recipe as a graph of tasks with content keys, what is cached, and where each task may
+write (every path resolved inside the output folder, no two tasks colliding)."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import os
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from kmpipe.errors import InputError
+from kmpipe.formats.files import is_regular, read_text, sha256, within
+from kmpipe.formats.recipe import Recipe, inside, load_recipe, slug
+from kmpipe.run.folder import LOCK, PRODUCTS, RECORDS, RECORDS_OWNER, STATE
+from kmpipe.run.tasks import (
+    PLAN_FILE,
+    Task,
+    do_material,
+    do_plan,
+    do_render,
+    do_reports,
+    do_sheet,
+    do_validate,
+    remember_recipe,
+    task_key,
+)
+
+#: Frames of a product rendered by one task.
+FRAMES_PER_TASK = 4
+
+
+#: Largest contact sheet in pixels: a long line's sheet has cells smaller than 256 px to stay under it (a sheet takes
+#: about 40 bytes a pixel while it is made: 2.6 GB).
+SHEET_PIXELS = 64_000_000
+#: Largest total of frame pixels a contact sheet reads (all at once, 12 bytes a pixel: 3.6 GB); a line whose sheet
+#: would read more is refused at planning.
+SHEET_FRAME_PIXELS = 300_000_000
+
+
+@dataclass
+class RunPlan:
+    """The graph of a recipe's tasks for one output folder, with what is cached."""
+
+    recipe: Recipe
+    out_dir: Path
+    tasks: dict[str, Task]
+    keep_going: bool
+
+    def explain(self) -> str:
+        lines = [f"Run plan of {self.recipe.info.line.name} ({self.recipe.path}) into {self.out_dir}:"]
+        for task in self.tasks.values():
+            state = {"pending": "will run", "cached": "cached", "skipped": "skipped"}.get(task.state, task.state)
+            lines.append(f"  {task.id:<40} {state}{f' ({task.reason})' if task.reason else ''}")
+        counts = {s: sum(t.state == s for t in self.tasks.values()) for s in ("pending", "cached", "skipped")}
+        lines.append(f"{counts['pending']} to run, {counts['cached']} cached, {counts['skipped']} skipped")
+        return "\n".join(lines)
+
+    def folders(self) -> list[Path]:
+        """The folders the run writes into (products, records, frames, reports), under the output folder."""
+        outputs = self.recipe.info.outputs
+        return [self.out_dir / PRODUCTS, self.out_dir / STATE, self.out_dir / outputs.frames,
+                self.out_dir / outputs.reports]  # fmt: skip
+
+
+def record_path(out_dir: Path, task_id: str) -> Path:
+    return out_dir / RECORDS / (task_id.replace(":", "__") + ".json")
+
+
+def cached_result(out_dir: Path, task: Task) -> dict | None:
+    """The recorded result of ``task`` if its record holds its key and its outputs exist; a record that cannot be
+    read (damaged, not a regular file) means "not cached"."""
+    try:
+        record = json.loads(read_text(record_path(out_dir, task.id), "JSON"))
+    except (InputError, ValueError):
+        return None
+    if not isinstance(record, dict) or record.get("key") != task.key:
+        return None
+    if not all((out_dir / o).exists() for o in task.outputs):
+        return None
+    result = record.get("result", {})
+    return result if isinstance(result, dict) else None
+
+
+class _Claims:
+    """Every path of a run's tasks, resolved: refused if it leads outside the output folder, exists as what it is
+    not (a folder where a file goes), or collides with another task's: the same file, a file where a folder goes, a
+    file inside a folder that is another's own, folders of the layout (products, records, frames, reports) inside one
+    another. ``field`` names the recipe field that placed a path (None: the fixed layout, products and records)."""
+
+    def __init__(self, recipe: Recipe, root: Path) -> None:
+        self.recipe, self.root = recipe, root
+        self.files: dict[Path, str] = {}  # resolved path: the task writing it
+        self.folders: dict[Path, str] = {}  # resolved path: whose it is
+        self.own: dict[Path, str] = {}  # folders holding only what their owner writes
+        self.layout: dict[Path, tuple[str, str | None]] = {}  # the layout's folders: (what, field)
+
+    def _refuse(self, relative: str | Path, other: str, field: str | None) -> None:
+        if field is None:
+            raise InputError(f"collides with {other}", path=self.root / relative, field="-o")
+        raise InputError(f"{str(relative)!r} collides with {other}: the outputs of one run must not overlap; give "
+                         "another path", **self.recipe.where(tuple(field.split("."))))  # fmt: skip
+
+    def _above(self, target: Path) -> Iterator[Path]:
+        """The folders between ``target`` and the output folder (both excluded)."""
+        for parent in target.parents:
+            if parent == self.root:
+                return
+            yield parent
+
+    def top(self, relative: str | Path, what: str, field: str | None, *, own: bool = False) -> None:
+        """A folder of the output folder's layout: not the output folder, not in, nor holding, another one."""
+        target = within(self.root, relative, field="-o")
+        if target == self.root:
+            self._refuse(relative, f"the output folder {self.root} itself, which holds the others", field)
+        for other, (name, other_field) in self.layout.items():
+            if target == other or target.is_relative_to(other) or other.is_relative_to(target):
+                self._refuse(relative, f"{name}{f' ({other_field})' if other_field else ''}, {other}", field)
+        self.layout[target] = (what, field)
+        self.folder(relative, what, field, own=own)
+
+    def folder(self, relative: str | Path, whose: str, field: str | None, *, own: bool = False) -> None:
+        """A folder that ``whose`` writes into (``own``: holding nothing else)."""
+        target = within(self.root, relative, field="-o")
+        if os.path.lexists(target) and not target.is_dir():
+            raise InputError("exists and is not a folder; kmpipe writes a folder there", path=target, field="-o")
+        for place in (target, *self._above(target)):
+            if place in self.files:
+                self._refuse(relative, f"the output of {self.files[place]}, {place}, a file", field)
+        self.folders.setdefault(target, whose)
+        if own:
+            self.own[target] = whose
+
+    def file(self, relative: str | Path, task: str, whose: str, field: str | None) -> None:
+        """A file that ``task`` writes, into folders of ``whose``."""
+        target = within(self.root, relative, field="-o")
+        if target.is_dir():
+            raise InputError("is a folder; kmpipe writes a file there", path=target, field="-o")
+        if target in self.files:
+            self._refuse(relative, f"an output of {self.files[target]}, {target}", field)
+        if target in self.folders:
+            self._refuse(relative, f"the folder of {self.folders[target]}, {target}", field)
+        for parent in self._above(target):
+            if parent in self.files:
+                self._refuse(relative, f"the output of {self.files[parent]}, {parent}, a file", field)
+            if self.own.get(parent, whose) != whose:
+                self._refuse(relative, f"the folder of {self.own[parent]}, {parent}", field)
+        self.files[target] = task
+
+    def task(self, task: Task, whose: str, field: str | None) -> Task:
+        """Claim a task's outputs (placed by ``field``) and its record."""
+        for path in task.outputs:
+            self.file(path, task.id, whose, field)
+        self.file(record_path(Path(), task.id), task.id, RECORDS_OWNER, None)
+        return task
+
+
+def plan_run(
+    recipe_path: str | Path, out_dir: str | Path, *, only: Sequence[str] = (), keep_going: bool = False
+) -> RunPlan:
+    """The task graph of a recipe: keys from file contents and settings, cached tasks marked.
+
+    Every path the tasks write is checked (see :class:`_Claims`): inside the output folder, resolved, and no two
+    tasks' outputs colliding. Nothing is written.
+
+    >>> import collections, kmpipe, pathlib, tempfile
+    >>> recipe = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "demo" / "recipe.toml"
+    >>> plan = plan_run(recipe, pathlib.Path(tempfile.mkdtemp()))  # nothing is written: the graph and what is cached
+    >>> sorted(collections.Counter(task.kind for task in plan.tasks.values()).items())
+    [('material', 5), ('plan', 6), ('render', 12), ('reports', 1), ('sheet', 1), ('validate', 5)]
+    >>> {task.state for task in plan.tasks.values()}
+    {'pending'}
+    """
+    recipe = remember_recipe(load_recipe(recipe_path))
+    out_dir = Path(out_dir).absolute()  # tasks may run in other processes, in other folders
+    info = recipe.info
+    names = [p.name for p in info.product]
+    by_name = {p.name: p for p in info.product}
+    unknown = [n for n in only if n not in by_name]
+    if unknown:
+        raise InputError(f"names no product of the recipe: {', '.join(unknown)} (it has {', '.join(names)})",
+                         field="--only")  # fmt: skip
+    wanted = set(only) or set(names)
+    # A product needs the materials of the products in its stack.
+    for name in list(wanted):
+        for layer in by_name[name].layer:
+            if layer.get("material") not in (None, "self"):
+                wanted.add(layer["material"])
+    outputs = info.outputs
+    frames_dir = inside(out_dir, outputs.frames, recipe.where(("outputs", "frames")))
+    reports_dir = inside(out_dir, outputs.reports, recipe.where(("outputs", "reports")))
+    claims = _Claims(recipe, out_dir.resolve())
+    claims.top(PRODUCTS, "the products folder", None)
+    claims.top(STATE, RECORDS_OWNER, None, own=True)
+    claims.file(LOCK, "the lock", RECORDS_OWNER, None)
+    claims.top(outputs.reports, "the reports folder", "outputs.reports")
+    claims.top(outputs.frames, "the frames folder", "outputs.frames")
+    tasks: dict[str, Task] = {}
+    hashes: dict[Path, str] = {}  # of the input files, each read once however many products share it
+
+    def add(task: Task, whose: str, field: str | None) -> Task:
+        tasks[task.id] = claims.task(task, whose, field)
+        return task
+
+    def rel(path: Path) -> str:
+        return os.path.relpath(path, out_dir)
+
+    def hashed(path: Path) -> str:  # each input file hashed once per plan
+        if path not in hashes:
+            hashes[path] = sha256(path)
+        return hashes[path]
+
+    material_key: dict[str, str] = {}
+    for product in info.product:
+        if product.name not in wanted or product.source is None:
+            continue
+        folder = out_dir / PRODUCTS / slug(product.name)
+        whose = f"the material of {product.name}"
+        base = recipe.base
+        settings: dict = {}
+        if product.source == "measure":
+            inputs = {"plan": base / product.measure.plan}
+            settings = {"port": product.measure.port, "baudrate": product.measure.baudrate}
+        elif product.source == "replay":
+            inputs = {"log": base / product.replay.log, "plan": base / product.replay.plan}
+        elif product.source == "fit":
+            inputs = {"manifest": base / product.fit, **_manifest_inputs(base / product.fit)}
+        else:
+            inputs = {"material": base / product.material}
+        folders = [folder] + ([folder / "session"] if product.source in ("measure", "replay") else [])
+        written = [folder / "session.jsonl", folder / "session-resumed.jsonl"] if product.source == "measure" else []
+        for path in folders:
+            claims.folder(rel(path), whose, None, own=True)
+        for path in written:
+            claims.file(rel(path), f"material:{slug(product.name)}", whose, None)
+        key = task_key("material", product.source, {name: hashed(Path(p)) for name, p in inputs.items()}, settings)
+        material_key[product.name] = key
+        paths = {k: str(v) for k, v in inputs.items() if k in ("log", "plan", "manifest", "material")}
+        add(Task("material", slug(product.name), product.name, (), key, (rel(folder / "material.json"),),
+                 do_material, {"source": product.source, "out": str(folder), "inputs": {**paths, **settings}},
+                 tuple(rel(p) for p in folders + written)), whose, None)  # fmt: skip
+        if product.source != "material":
+            thresholds = {k: getattr(recipe.thresholds, k) for k in recipe.thresholds.__dataclass_fields__}
+            report = reports_dir / slug(product.name)
+            whose = f"the report of {product.name}"
+            claims.folder(rel(report), whose, "outputs.reports", own=True)
+            add(Task("validate", slug(product.name), product.name, (f"material:{slug(product.name)}",),
+                     task_key("validate", key, info.validation.illuminants, thresholds),
+                     (rel(report / "validation.json"), rel(report / "report.html")), do_validate,
+                     {"material": str(folder / "material.json"), "out": str(report),
+                      "illuminants": info.validation.illuminants, "thresholds": thresholds},
+                     (rel(report),)), whose, "outputs.reports")  # fmt: skip
+
+    rows = []
+    for product in info.product:
+        if not product.layer or product.name not in (set(only) or set(names)):
+            continue
+        owners = [product.name if layer.get("material") == "self" else layer["material"] for layer in product.layer]
+        materials = {o: str(out_dir / PRODUCTS / slug(o) / "material.json") for o in owners}
+        data = recipe.scene_data(product, {o: Path(slug(o)) for o in owners})  # paths out of the key: names
+        files = _scene_files(recipe, data, hashed)
+        frame_count = (data.get("turntable") or {}).get("frames", 1)
+        deps = tuple(dict.fromkeys(f"material:{slug(o)}" for o in owners))
+        checks = tuple(f"validate:{slug(o)}" for o in dict.fromkeys(owners) if f"validate:{slug(o)}" in tasks)
+        upstream = [material_key[o] for o in owners] + [tasks[c].key for c in checks]
+        folder = frames_dir / slug(product.name)
+        whose = f"the frames of {product.name}"
+        claims.folder(rel(folder), whose, "outputs.frames", own=True)
+        # The plan: keyed by what the renders read, written once beside the frames; every render task reads it.
+        plan_id, plan_file = f"plan:{slug(product.name)}", folder / PLAN_FILE
+        plan_key = task_key("plan", data, files, upstream)
+        scene_args = {"recipe": str(recipe.path), "product": product.name, "materials": materials}
+        add(Task("plan", slug(product.name), product.name, deps + checks, plan_key, (rel(plan_file),),
+                 do_plan, {**scene_args, "out": str(plan_file)}, (rel(folder),)), whose, "outputs.frames")  # fmt: skip
+        chunks = []
+        for start in range(0, frame_count, FRAMES_PER_TASK):
+            frames = list(range(start, min(start + FRAMES_PER_TASK, frame_count)))
+            key = task_key("render", plan_key, frames, keep_going)
+            task = Task(
+                "render",
+                f"{slug(product.name)}:{frames[0]}-{frames[-1]}",
+                product.name,
+                (*deps, *checks, plan_id),
+                key,
+                tuple(rel(folder / f"frame_{i:03d}.{ext}") for i in frames for ext in ("exr", "png")),
+                do_render,
+                {**scene_args, "plan": str(plan_file), "out": str(folder), "frames": frames, "header": {}},
+                (rel(folder),),
+            )
+            add(task, whose, "outputs.frames")
+            chunks.append(task.id)
+        width, height = (data.get("scene") or {}).get("resolution") or (256, 256)
+        rows.append((product.name, product.shade or product.name, chunks, folder, frame_count, width * height))
+
+    validations = [t for t in tasks.values() if t.kind == "validate"]
+    if validations:
+        entries = [(str(out_dir / t.outputs[0]), str(out_dir / t.outputs[1])) for t in validations]
+        add(Task("reports", "", None, tuple(t.id for t in validations),
+                 task_key("reports", [t.key for t in validations]), (rel(reports_dir / "index.html"),), do_reports,
+                 {"entries": entries, "out": str(reports_dir)}, (rel(reports_dir / "summary.json"),)),
+            "the index of the reports", "outputs.reports")  # fmt: skip
+        claims.file(rel(reports_dir / "summary.json"), "reports", "the index of the reports", "outputs.reports")
+    if outputs.sheet is not None and rows:
+        sheet = inside(out_dir, outputs.sheet, recipe.where(("outputs", "sheet")))
+        count = min(outputs.sheet_columns, min(row[4] for row in rows))
+        cell = _sheet_cell(recipe, count, [row[5] for row in rows])
+        # each product's turntable sampled at `count` evenly spaced frames; labels come from the frames' headers
+        picked = [{"chunks": row[2], "frames": [str(row[3] / f"frame_{round(k * row[4] / count):03d}.exr")
+                                                for k in range(count)]} for row in rows]  # fmt: skip
+        chunks = [c for row in rows for c in row[2]]
+        header = f"{info.line.name} · {info.line.illuminant}"
+        dated = f"{header} · {datetime.date.today().isoformat()}"  # the date the sheet is made, not part of its key
+        add(Task("sheet", "", None, tuple(chunks),
+                 task_key("sheet", [tasks[c].key for c in chunks], count, header, cell), (rel(sheet),), do_sheet,
+                 {"rows": picked, "out": str(sheet), "header": dated, "columns": count, "cell": cell}),
+            "the contact sheet", "outputs.sheet")  # fmt: skip
+
+    plan = RunPlan(recipe, out_dir, tasks, keep_going)
+    mark_cached(plan)
+    return plan
+
+
+def _sheet_cell(recipe: Recipe, columns: int, frame_pixels: list[int]) -> int:
+    """The side of the contact sheet's cells: 256 px, less for a line so long that the sheet would pass
+    :data:`SHEET_PIXELS`; refused (InputError at ``outputs.sheet``) if the cells would be under 16 px or the frames the
+    sheet reads pass :data:`SHEET_FRAME_PIXELS` (every one is in memory while the sheet is made)."""
+    cells = columns * len(frame_pixels)
+    cell = min(256, math.isqrt(SHEET_PIXELS // cells) - 8)  # cells and the 8 px margins between them
+    reads = columns * sum(frame_pixels)
+    if cell < 16 or reads > SHEET_FRAME_PIXELS:
+        raise InputError(
+            f"a contact sheet of {len(frame_pixels)} products by {columns} angles is larger than kmpipe makes: at "
+            f"most {SHEET_PIXELS // 10**6} million pixels, in cells of 16 px or more, from at most "
+            f"{SHEET_FRAME_PIXELS // 10**6} million pixels of frames (this one reads {reads // 10**6} million); give "
+            "fewer outputs.sheet_columns, a smaller scene.resolution, or run part of the line with --only",
+            **recipe.where(("outputs", "sheet")),
+        )
+    return cell
+
+
+def mark_cached(plan: RunPlan) -> None:
+    """Mark the pending tasks whose record holds their key and whose outputs exist as cached; skip the renders of a
+    material whose failed verdict is already known."""
+    pending = [t for t in plan.tasks.values() if t.state == "pending"]
+    for task in pending:
+        result = cached_result(plan.out_dir, task)
+        if result is not None:
+            task.state, task.result = "cached", result
+    for task in pending:
+        if task.state == "pending" and all(plan.tasks[d].state == "cached" for d in task.deps
+                                           if plan.tasks[d].kind == "validate"):  # fmt: skip
+            blocked_by_validation(plan, task)
+
+
+def _manifest_inputs(manifest: Path) -> dict[str, Path]:
+    """The files a manifest's fit reads (the manifest, its measurement CSVs, a certificate), by name; no data read."""
+    from kmpipe.formats.manifest import manifest_files
+
+    return {f"input:{i}": p for i, p in enumerate(manifest_files(manifest))}
+
+
+def _scene_files(recipe: Recipe, data: dict, hashed: Callable[[Path], str]) -> dict[str, str]:
+    """SHA-256 of the files a product's scene reads besides materials
+    (:func:`kmpipe.formats.scene.referenced_files`), by
+    their path relative to the recipe."""
+    from kmpipe.formats.scene import SceneFile, referenced_files
+
+    paths = referenced_files(SceneFile.model_validate(data), recipe.base)  # checked when the recipe was loaded
+    return {os.path.relpath(p, recipe.base): hashed(p) for p in paths if is_regular(p)}
+
+
+def blocked_by_validation(plan: RunPlan, task: Task) -> bool:
+    """Skip the plan and the renders of a product whose materials failed validation (unless keep_going); True when
+    it was skipped."""
+    if task.kind not in ("plan", "render"):
+        return False
+    failed = failed_validations(plan, task)
+    if failed and not plan.keep_going:
+        names = ", ".join(plan.tasks[d].product for d in failed)
+        task.state, task.reason = "skipped", f"validation of {names} failed (--keep-going renders it anyway)"
+        return True
+    return False
+
+
+def failed_validations(plan: RunPlan, task: Task) -> list[str]:
+    """The validate tasks among ``task``'s dependencies whose verdict is fail."""
+    checks = [plan.tasks[d] for d in task.deps if plan.tasks[d].kind == "validate"]
+    return [check.id for check in checks if check.result.get("verdict") == "fail"]

@@ -1,0 +1,133 @@
+"""The sheet stage: rendered frames laid out on a labelled contact sheet (``kmpipe sheet``, ``kmpipe run``).
+
+Labels come from the frames themselves: an EXR that ``kmpipe render`` wrote names its product, shade, camera azimuth,
+scene and illuminant in its header (docs/formats.md, "Frames"), so a sheet of such frames labels itself.
+"""
+
+from __future__ import annotations
+
+import datetime
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from kmpipe.errors import InputError
+from kmpipe.formats import files
+
+#: Side (px) of a sheet's square cells unless the caller chooses.
+CELL_PIXELS = 256
+#: Put before the row label of a product whose frames say it failed validation (rendered with ``--keep-going``).
+FAILED_MARK = "⚠ "
+
+
+@dataclass(frozen=True)
+class SheetLabels:
+    """Labels of a sheet: one per row (drawn left), one per column (drawn above) and a header line."""
+
+    rows: list[str]
+    columns: list[str]
+    header: str
+
+
+@dataclass(frozen=True)
+class SheetWritten:
+    """A written sheet: its file, its grid of frames (rows, columns) and its size in pixels (width, height)."""
+
+    path: Path
+    grid: tuple[int, int]
+    size: tuple[int, int]
+
+
+def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabels:
+    """Row and column labels and header of a sheet of ``frames`` (row-major) in ``n_rows`` x ``n_cols`` cells.
+
+    Frames that ``kmpipe render`` wrote (EXR with ``product`` and ``camera_azimuth_deg`` attributes) give
+    "product · shade" per row (the product alone when the shade is its name; marked with :data:`FAILED_MARK` when
+    the frame's ``validation`` attribute says it failed), the camera's azimuth in degrees per
+    column (from the first row) and "scene · illuminant · today's date" across the top; any other frames give their
+    file stems and no header.
+    """
+    from renderer.image_io import read_header
+
+    headers = []
+    for path in frames:
+        try:
+            headers.append(read_header(path) if path.suffix.lower() == ".exr" else {})
+        except OSError:
+            headers.append({})  # unreadable: make_sheet names it
+    if not all("product" in h and "camera_azimuth_deg" in h for h in headers):
+        rows = [frames[r * n_cols].stem for r in range(n_rows)]
+        return SheetLabels(rows, [p.stem for p in frames[:n_cols]], "")
+
+    def row_label(h: dict) -> str:
+        name = h["product"] if h["shade"] in ("", h["product"]) else f"{h['product']} · {h['shade']}"
+        return FAILED_MARK + name if str(h.get("validation", "")).startswith("fail") else name
+
+    rows = [row_label(headers[r * n_cols]) for r in range(n_rows)]
+    columns = [f"{float(h['camera_azimuth_deg']):g}°" for h in headers[:n_cols]]
+    scenes = ", ".join(dict.fromkeys(str(h.get("scene", "")) for h in headers))
+    illuminants = ", ".join(dict.fromkeys(str(h.get("illuminant", "")) for h in headers))
+    return SheetLabels(rows, columns, f"{scenes} · {illuminants} · {datetime.date.today().isoformat()}")
+
+
+def write_contact_sheet(
+    frames: Sequence[str | Path],
+    output: str | Path,
+    *,
+    columns: int | None = None,
+    row_labels: Sequence[str] | None = None,
+    column_labels: Sequence[str] | None = None,
+    header: str | None = None,
+    cell: int = CELL_PIXELS,
+) -> SheetWritten:
+    """Lay ``frames`` (EXR, linear, encoded to sRGB; or PNG) out row-major in ``columns`` columns (default: up to 4)
+    and write the sheet to ``output`` (PNG) in cells ``cell`` px square.
+
+    Labels and header left None come from the frames (:func:`frame_labels`); given labels must match the grid
+    (InputError naming ``--row-labels`` or ``--column-labels``). A frame that cannot be read is an InputError
+    naming it, and nothing is written.
+
+    >>> import tempfile, pathlib, numpy as np
+    >>> from renderer.image_io import write_exr
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> frames = [folder / f"frame_{i:03d}.exr" for i in range(2)]
+    >>> for i, frame in enumerate(frames):
+    ...     write_exr(frame, np.full((32, 32, 3), 0.2 * (i + 1)), {"product": "Rouge", "shade": "Berry",
+    ...               "camera_azimuth_deg": 180.0 * i, "scene": "bullet", "illuminant": "D65"})
+    >>> sheet = write_contact_sheet(frames, folder / "sheet.png", cell=64)
+    >>> sheet.grid, sheet.path.name
+    ((1, 2), 'sheet.png')
+    >>> labels = frame_labels(frames, 1, 2)
+    >>> labels.rows, labels.columns, labels.header.startswith("bullet · D65 · ")
+    (['Rouge · Berry'], ['0°', '180°'], True)
+    """
+    from renderer.contact_sheet import FrameError, make_sheet, write_sheet
+
+    frames, output = [Path(f) for f in frames], Path(output)
+    files.output_file(output, suffixes=(".png",), inputs=frames)
+    n_cols = columns or min(len(frames), 4)
+    n_rows = -(-len(frames) // n_cols)
+    for path in frames:
+        files.regular_file(path, "image")
+    labels = frame_labels(frames, n_rows, n_cols)
+    chosen_columns = list(column_labels) if column_labels is not None else labels.columns
+    chosen_rows = list(row_labels) if row_labels is not None else labels.rows
+    for option, given, wanted in (("--column-labels", chosen_columns, n_cols), ("--row-labels", chosen_rows, n_rows)):
+        if len(given) != wanted:
+            raise InputError(
+                f"gives {len(given)} labels; {len(frames)} frames in {n_cols} columns need {wanted}", field=option
+            )
+    try:
+        sheet = make_sheet(
+            frames,
+            rows=chosen_rows,
+            columns=chosen_columns,
+            grid=(n_rows, n_cols),
+            header=labels.header if header is None else header,
+            cell_size=(cell, cell),
+        )
+    except FrameError as err:
+        raise InputError(err.reason, path=err.path) from None
+    write_sheet(sheet, output)
+    spec = sheet.spec()
+    return SheetWritten(output, (n_rows, n_cols), (spec.width, spec.height))
