@@ -215,68 +215,23 @@ def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
 
 def _cmd_emulate(args: argparse.Namespace, console: Console) -> int:
     """Serve the emulator of the samples script until Ctrl-C or SIGTERM (exit 0)."""
-    import contextlib
-    import signal
-    import threading
+    from kmpipe.stages.emulate import serve_emulator
 
-    from kmpipe.formats.emulator_script import emulator_from_script
+    def echo(line: str) -> None:
+        console.print(line, highlight=False, markup=False, soft_wrap=True)
+        console.file.flush()
 
-    if args.socket is not None and not 0 <= args.socket <= 65535:
-        raise InputError(f"a TCP port is 0 (any free port) to 65535, got {args.socket}", field="--socket")
-    overrides: dict[str, object] = {"link": args.link, "socket_port": args.socket}
-    if args.time_scale is not None:
-        overrides["time_scale"] = args.time_scale
-    emulator = emulator_from_script(args.samples, **overrides)
-    on_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, signal.default_int_handler) if on_main_thread else None
-    try:
-        with emulator:
-            lines = [f"CS-2000 emulator: serial port {emulator.port} (link {emulator.link})"]
-            if emulator.socket_url:
-                lines.append(f"CS-2000 emulator: {emulator.socket_url}")
-            lines.append(
-                f"samples: {', '.join(emulator.sample_names)}; time scale {emulator.time_scale}; Ctrl-C to stop"
-            )
-            for line in lines:
-                console.print(line, highlight=False, markup=False, soft_wrap=True)
-            console.file.flush()
-            with contextlib.suppress(KeyboardInterrupt):
-                while not emulator.wait(0.5):
-                    pass
-    except FileExistsError:
-        raise InputError(
-            "exists and is not an emulator link; choose another path", path=args.link, field="--link"
-        ) from None
-    except OSError as err:
-        raise InputError(f"the emulator cannot listen: {err}", field="--socket" if args.socket else "--link") from None
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+    serve_emulator(args.samples, link=args.link, socket_port=args.socket, time_scale=args.time_scale, echo=echo)
     return EXIT_OK
 
 
 def _cmd_card(args: argparse.Namespace, console: Console) -> int:
-    from instruments.drawdown_card.layout import default_layout
-    from instruments.drawdown_card.printing import write_card
-    from kmpipe.formats.card_layout import card_layout_toml, load_card_layout, write_card_layout
+    from kmpipe.stages.card import write_card_files
 
-    files.output_file(args.output, suffixes=(".png", ".pdf"), inputs=[args.layout])
-    if args.layout is not None:
-        layout = load_card_layout(args.layout)
-    else:
-        layout = default_layout()
-        layout_path = files.output_file(args.output.with_suffix(".layout.toml"), field="-o")
-        if layout_path.exists() and files.read_text(layout_path, "TOML") != card_layout_toml(layout):
-            raise InputError(
-                "exists and differs from the built-in layout (edited?); kmpipe does not replace it: draw the card "
-                f"from it with --layout {layout_path}, or remove it to start from the built-in layout",
-                path=layout_path,
-                field="-o",
-            )
-        write_card_layout(layout, layout_path)
-        console.print(f"wrote the layout {layout_path} (kmpipe ingest-raw reads it)", highlight=False, markup=False)
-    write_card(layout, args.output)
-    console.print(f"wrote the card {args.output}: print it at 100 % scale", highlight=False, markup=False)
+    written = write_card_files(args.output, args.layout)
+    if written.layout is not None:
+        console.print(f"wrote the layout {written.layout} (kmpipe ingest-raw reads it)", highlight=False, markup=False)
+    console.print(f"wrote the card {written.card}: print it at 100 % scale", highlight=False, markup=False)
     return EXIT_OK
 
 

@@ -442,8 +442,13 @@ def test_card_keeps_an_edited_layout_beside_it(tmp_path):
     assert run_cli(["card", "-o", card])[0] == 0
     layout = tmp_path / "X.layout.toml"
     assert run_cli(["card", "-o", card])[0] == 0  # the built-in layout, unchanged: written again, the same
-    edited = layout.read_text().replace("[card]", "# tuned for our printer\n[card]", 1)
-    layout.write_text(edited)
+    commented = layout.read_text().replace("[card]", "# printed on our Epson\n[card]", 1)
+    layout.write_text(commented)  # the same layout with a comment: kept as it is, the card drawn from it
+    assert run_cli(["card", "-o", card])[0] == 0
+    assert layout.read_text() == commented
+    edited = commented.replace("{ id = 1, x_mm = 190.0,", "{ id = 1, x_mm = 189.0,", 1)
+    assert edited != commented
+    layout.write_text(edited)  # another layout: never replaced, the card not drawn over it
     status, _, err = run_cli(["card", "-o", card])
     assert status == 2 and "X.layout.toml" in err and "--layout" in err
     assert layout.read_text() == edited

@@ -7,14 +7,20 @@ import doctest
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 import kmpipe
 
 PUBLIC = [name for name in kmpipe.__all__ if name != "__version__"]
-#: Modules whose docstrings hold examples beyond the public functions' own (module docstrings, helpers).
-MODULES = sorted({"kmpipe", "kmpipe.formats.manifest", *(kmpipe._PUBLIC[name] for name in PUBLIC)})
+ROOT = Path(kmpipe.__file__).resolve().parent
+#: Every kmpipe module whose docstrings hold examples, and every module of a public name.
+MODULES = sorted(
+    {".".join(p.relative_to(ROOT.parent).with_suffix("").parts).removesuffix(".__init__")
+     for p in ROOT.rglob("*.py") if ">>> " in p.read_text(encoding="utf-8")}
+    | {kmpipe._PUBLIC[name] for name in PUBLIC}
+)  # fmt: skip
 
 
 @pytest.mark.parametrize("name", PUBLIC)

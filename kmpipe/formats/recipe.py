@@ -30,6 +30,7 @@ from kmpipe.formats.files import UNLIMITED, regular_file
 from kmpipe.formats.scene import MAX_LAYERS, RenderSettings, SceneFile
 from kmpipe.formats.thresholds import Thresholds
 from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
+from kmpipe.physics.colorimetry import illuminant_key
 
 #: The material of the product itself, in its layer stack.
 SELF = "self"
@@ -47,6 +48,13 @@ class ValidationInfo(StrictModel):
     delta_e_fail: float | None = None
     rmse_warn: float | None = None
     rmse_fail: float | None = None
+
+    @field_validator("illuminants")
+    @classmethod
+    def _known_illuminants(cls, names: list[str]) -> list[str]:
+        for name in names:
+            illuminant_key(name)  # the one resolver: refused here, before any product is measured or fitted
+        return names
 
 
 class ReplaySource(StrictModel):
