@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 from common import REPO, Table
 
-from kmpipe.cli import main as kmpipe_main
 from kmpipe.formats.scene import load_scene
+from kmpipe.stages.fit import fit_manifests
 from kmpipe.stages.render import renderer_scenes
 from kmpipe.stages.render_plan import plan_scene
 from renderer.skin import render_skin
@@ -48,10 +48,9 @@ def _time(render) -> float:
 
 
 def _scenes(folder: Path) -> dict[str, Path]:
-    for name in ("F1", "B1", "L1"):
-        manifest = REPO / "recipes" / "samples" / name / "manifest.toml"
-        if kmpipe_main(["fit", str(manifest), "-o", str(folder / "materials" / f"{name}.json")]) != 0:
-            raise RuntimeError(f"fitting {name} failed")
+    (folder / "materials").mkdir()
+    manifests = [REPO / "recipes" / "samples" / name / "manifest.toml" for name in ("F1", "B1", "L1")]
+    fit_manifests(manifests, folder / "materials")
     shutil.copy(REPO / "recipes" / "scenes" / "head_makeup.png", folder)
     face = (REPO / "recipes" / "scenes" / "face.toml").read_text(encoding="utf-8")
     close_up = face.replace("[camera]", "[camera]\ndistance_mm = 160.0")

@@ -27,7 +27,7 @@ from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
 from kmpipe.formats.scene import Scene, load_scene
 from kmpipe.physics.optical_tables import exact_stack, parse_mode, working_space
 from kmpipe.stages.render_plan import GROUND_EXTENT, SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene
-from renderer.contact_sheet import make_sheet, write_sheet
+from kmpipe.stages.sheet import write_contact_sheet
 from renderer.image_io import write_exr, write_png
 from renderer.layers import render_layers
 from renderer.meshes import card
@@ -366,18 +366,10 @@ def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) 
 
 
 def _ab_sheet(out_dir: Path, scene: Scene, frames: int) -> Path:
-    """``ab_sss.png``: up to 4 frames with subsurface scattering (top row) and without (bottom row)."""
+    """``ab_sss.png``: up to 4 frames with subsurface scattering (top row) and without (bottom row), a column per
+    camera angle (from the frames' headers, :func:`kmpipe.stages.sheet.frame_labels`)."""
     picks = [round(i * frames / min(frames, 4)) for i in range(min(frames, 4))]
     paths = [out_dir / f"frame_{i:03d}.exr" for i in picks] + [out_dir / "no_sss" / f"frame_{i:03d}.exr" for i in picks]
-    angles = scene.turntable_angles_deg()
-    columns = [f"{(scene.info.camera.azimuth_deg + angles[i]) % 360.0:g}°" for i in picks]
-    sheet = make_sheet(
-        paths,
-        rows=["with subsurface scattering", "without"],
-        columns=columns,
-        grid=(2, len(picks)),
-        header=f"{scene.name} · {scene.product} · {scene.shade} · {scene.info.scene.illuminant}",
-    )
-    path = out_dir / "ab_sss.png"
-    write_sheet(sheet, path)
-    return path
+    header = f"{scene.name} · {scene.product} · {scene.shade} · {scene.info.scene.illuminant}"
+    rows = ["with subsurface scattering", "without"]
+    return write_contact_sheet(paths, out_dir / "ab_sss.png", columns=len(picks), row_labels=rows, header=header).path
