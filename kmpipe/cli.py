@@ -308,6 +308,9 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     console.print(f"wrote {len(frames)} frames (EXR and PNG) to {args.output}", highlight=False, markup=False)
     if args.ab_sss:
         console.print(f"wrote the A/B sheet {args.output / 'ab_sss.png'} (frames without SSS in no_sss/)", markup=False)
+    videos = [str(path) for path in written if path.suffix in (".mp4", ".webp")]
+    if videos:
+        console.print(f"wrote the turntable videos {', '.join(videos)}", highlight=False, markup=False, soft_wrap=True)
     return EXIT_OK
 
 

@@ -31,7 +31,7 @@ from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.meshes import GpuMesh
 from renderer.program import Program
-from renderer.scene import MAX_LIGHTS, Camera, Light, OrthographicCamera, PointLight, Scene
+from renderer.scene import MAX_LIGHTS, Camera, Light, OrthographicCamera, PointLight, Scene, supersampled
 from renderer.shadows import MARGIN, ShadowMap, light_view_projection, shadow_matrix
 from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed, Specular
 
@@ -217,13 +217,17 @@ def render_layers(scene: Scene) -> np.ndarray:
     """Render ``scene``: its mesh covered by its Kubelka-Munk stack of films, and its props, into a float image.
 
     Every field of the :class:`~renderer.scene.Scene` is used but ``scattering`` (the skin pass's,
-    :func:`renderer.skin.render_skin`).
+    :func:`renderer.skin.render_skin`); ``supersampling`` through :func:`renderer.scene.supersampled`.
 
     Returns
     -------
     np.ndarray
         Linear RGB, float32, shape (height, width, 3), top row first.
     """
+    return supersampled(_render_layers, scene)
+
+
+def _render_layers(scene: Scene) -> np.ndarray:
     with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(*scene.resolution) as target:
         target.clear((*scene.background, 0.0))
         surface_pass.draw(target, split=False)

@@ -141,7 +141,7 @@ def head(scale: float = 1.0, n_polar: int = 96, n_azimuth: int = 128) -> trimesh
     """A procedural head-like shape (mm): an ellipsoid 150 wide, 220 tall, 190 deep, with a nose and a chin.
 
     Upright along +y, facing +z, centred at the origin. uv: u = 0.5 at the front (the nose), v = 0.5 at the eyes'
-    height; the face spans about u 0.33 .. 0.67, v 0.28 .. 0.7 (see :mod:`renderer.cosmetic_maps`). ``scale``
+    height; the face spans about u 0.33 .. 0.67, v 0.28 .. 0.7. ``scale``
     multiplies every length.
     """
 

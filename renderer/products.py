@@ -285,7 +285,9 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         raise ValueError(f"{path}: no such mesh file")
     try:  # an OBJ's materials (its .mtl and their textures) are not read: only geometry and uv are used
         options = {"skip_materials": True} if path.suffix.lower() == ".obj" else {}
-        loaded = trimesh.load(str(path), force="mesh", process=False, maintain_order=True, **options)
+        loaded = trimesh.load(str(path), process=False, maintain_order=True, **options)
+        if isinstance(loaded, trimesh.Scene):  # several meshes, node transforms: one mesh in world coordinates
+            loaded = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=True)
     except Exception as error:  # trimesh's loaders raise many types for malformed files
         raise ValueError(f"{path}: cannot read a mesh: {error}") from error
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:

@@ -8,8 +8,8 @@ row-major numpy (4, 4) arrays acting on column vectors, in the OpenGL clip-space
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -182,6 +182,12 @@ class Scattering:
             )
 
 
+#: Most samples per pixel side (4: 16 samples a pixel).
+MAX_SUPERSAMPLING = 4
+#: Largest side (pixels) of a supersampled render: the GL framebuffers' limit here.
+MAX_RENDER_SIDE = 8192
+
+
 @dataclass(frozen=True, kw_only=True)
 class Scene:
     """One frame to render: a mesh wearing a stack of films, its lights, camera and props, and the output size.
@@ -214,6 +220,10 @@ class Scene:
         Texels per side of each shadow map.
     background
         Linear RGB of pixels no surface covers (any float, unclamped).
+    supersampling
+        Samples per pixel along each side (1 to :data:`MAX_SUPERSAMPLING`): the frame is rendered at ``resolution``
+        times this and box-filtered down (:func:`supersampled`), so silhouettes get partial coverage while a region of
+        one value keeps that value exactly. 1: one sample per pixel.
     """
 
     mesh: trimesh.Trimesh
@@ -228,3 +238,27 @@ class Scene:
     props: Sequence[Prop] = ()
     shadow_map_size: int = 1024
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    supersampling: int = 1
+
+
+def supersampled(render: Callable[[Scene], np.ndarray], scene: Scene) -> np.ndarray:
+    """``render(scene)`` at ``scene.supersampling`` samples per pixel side, box-filtered to ``scene.resolution``.
+
+    The image is rendered at (w k, h k) pixels and each k x k block averaged in float64: pixel = (1 / k^2) sum of its
+    samples. A block of equal samples averages to exactly that value (the sum of k^2 <= 16 equal float32 values is
+    exact in float64, and so is its division when it is back in float32), so flat regions render as without
+    supersampling; a pixel a silhouette crosses takes the share of its samples on each side. ValueError when the
+    supersampled frame would pass :data:`MAX_RENDER_SIDE` or ``supersampling`` is not 1 to :data:`MAX_SUPERSAMPLING`.
+    """
+    k = scene.supersampling
+    if not (isinstance(k, int) and 1 <= k <= MAX_SUPERSAMPLING):
+        raise ValueError(f"supersampling is 1 to {MAX_SUPERSAMPLING} samples per pixel side, got {k!r}")
+    if k == 1:
+        return render(scene)
+    width, height = scene.resolution
+    if max(width, height) * k > MAX_RENDER_SIDE:
+        raise ValueError(f"a {width} x {height} frame at {k} x {k} samples per pixel is larger than the "
+                         f"{MAX_RENDER_SIDE} px a render may be; use fewer samples")  # fmt: skip
+    fine = render(replace(scene, resolution=(width * k, height * k), supersampling=1))
+    blocks = fine.reshape(height, k, width, k, fine.shape[-1]).astype(np.float64)
+    return blocks.mean(axis=(1, 3)).astype(np.float32)

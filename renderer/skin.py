@@ -34,7 +34,7 @@ from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.layers import SurfacePass
 from renderer.program import Program
-from renderer.scene import Camera, OrthographicCamera, Scattering, Scene
+from renderer.scene import Camera, OrthographicCamera, Scattering, Scene, supersampled
 
 #: Variances (mm^2) of the four Gaussians of the skin profile (thesis Table 3.1, Jimenez et al. 2009).
 SKIN_VARIANCES_MM2 = (0.0064, 0.0516, 0.2719, 2.0062)
@@ -121,8 +121,13 @@ def render_skin(scene: Scene) -> np.ndarray:
 
     The scene as :func:`renderer.layers.render_layers` takes it, with ``substrate_lobe`` the skin's own lobe
     (:data:`renderer.stack.SKIN_SPECULAR` for measured skin) and ``scattering`` the subsurface blur (None: no blur,
-    the result equals the layer pass's to rounding).
+    the result equals the layer pass's to rounding). Supersampled as :func:`renderer.scene.supersampled` says: the
+    blur runs on the fine image, its reach in mm the same.
     """
+    return supersampled(_render_skin, scene)
+
+
+def _render_skin(scene: Scene) -> np.ndarray:
     width, height = scene.resolution
     with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(width, height, targets=3) as target:
         target.bind()

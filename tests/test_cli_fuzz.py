@@ -299,12 +299,13 @@ def test_run_plans_broken_recipes(material, breakage):
 
 
 def test_the_small_recipe_runs(material, tmp_path):
-    """The recipe the fuzzer breaks is itself good: it renders its two frames and a sheet."""
+    """The recipe the fuzzer breaks is itself good: it renders its two frames, their videos and a sheet."""
     small_recipe(tmp_path, material)
     status, _, err = run_cli(["run", tmp_path / "recipe.toml", "-o", tmp_path / "out"])
     assert status == 0, err
     assert sorted(p.name for p in (tmp_path / "out" / "frames" / "f1").iterdir()) == [
-        "frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png", "plan.json"]  # fmt: skip
+        "frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png", "plan.json", "turntable.mp4",
+        "turntable.webp"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -533,7 +533,8 @@ def test_a_render_writes_exr_and_png_pairs_only(tmp_path, material_file, capsys)
     assert cli.main(["render", str(scene_path), "-o", str(tmp_path / "out")]) == 0
     capsys.readouterr()
     names = sorted(p.name for p in (tmp_path / "out").iterdir())
-    assert names == ["frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png"]
+    assert names == ["frame_000.exr", "frame_000.png", "frame_001.exr", "frame_001.png", "turntable.mp4",
+                     "turntable.webp"]  # fmt: skip
 
 
 def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_path, material_file, monkeypatch):

@@ -108,8 +108,10 @@ def material_tasks(*products: str) -> set[str]:
 
 
 def render_tasks(*products: str) -> set[str]:
-    """A product's render plan and its render chunks (the plan is made again whenever a render would be)."""
-    return {f"render:{p}:{c}" for p in products for c in CHUNKS} | {f"plan:{p}" for p in products}
+    """A product's render plan, its render chunks and its turntable's videos (the plan is made again whenever a
+    render would be, the videos whenever a frame is)."""
+    return {f"render:{p}:{c}" for p in products for c in CHUNKS} | {f"{k}:{p}" for p in products
+                                                                    for k in ("plan", "video")}  # fmt: skip
 
 
 ALL_TASKS = material_tasks(*MEASURED) | render_tasks(*STACKS) | {"reports", "sheet"}

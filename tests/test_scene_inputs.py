@@ -149,5 +149,6 @@ def test_touching_a_file_one_product_reads_renders_exactly_that_product_again(tm
     changed = plan_run(recipe, out)
     execute(changed)
     ran = {t.id for t in changed.tasks.values() if t.state == "run"}
-    textured = {t.id for t in changed.tasks.values() if t.product == "Textured" and t.kind in ("plan", "render")}
-    assert textured & renders and ran == textured | {"sheet"}  # its plan and renders, and the sheet that shows them
+    kinds = ("plan", "render", "video")
+    textured = {t.id for t in changed.tasks.values() if t.product == "Textured" and t.kind in kinds}
+    assert textured & renders and ran == textured | {"sheet"}  # its plan, renders and video, and the sheet

@@ -34,6 +34,7 @@ from kmpipe.formats.material import Material, read_material
 from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml
 from kmpipe.physics.colorimetry import illuminant_key
 from kmpipe.physics.optical_tables import parse_mode
+from renderer.scene import MAX_RENDER_SIDE, MAX_SUPERSAMPLING
 
 #: Most films in one stack (the layer pass's limit, renderer.stack.MAX_LAYERS).
 MAX_LAYERS = 4
@@ -41,6 +42,8 @@ MAX_LAYERS = 4
 MAX_LIGHTS = 4
 #: Built-in meshes by name.
 BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact", "head", "cylinder")
+#: The bundled head (``mesh = "head"``): MakeHuman's CC0 head and neck with its uv and eyes (recipes/head/README.md).
+HEAD_DIR = Path(__file__).resolve().parents[2] / "recipes" / "head"
 COLORCHECKER = "ColorChecker N Ohta"
 #: Largest image side (pixels). A frame costs about 200 bytes a pixel on llvmpipe (several RGBA32F targets of 16
 #: bytes, the depth buffer, the read-back and the float64 copies of tone mapping and writing): ~3.4 GB at
@@ -192,9 +195,16 @@ class GroundInfo(StrictModel):
     reflectance: float = Field(ge=0.0, le=1.0)
 
 
+#: Samples per pixel side when a scene's [output] gives no ``antialias``: 2 x 2 supersampling, clean silhouettes.
+DEFAULT_ANTIALIAS = 2
+
+
 class OutputInfo(StrictModel):
     tone_map: Literal["none", "reinhard", "aces"] = "none"
     exposure_ev: float = Field(default=0.0, ge=-20.0, le=20.0)
+    antialias: int = Field(default=DEFAULT_ANTIALIAS, ge=1, le=MAX_SUPERSAMPLING)  # samples per pixel side
+    video: list[Literal["mp4", "webp"]] = Field(default=["mp4", "webp"])  # turntable videos (kmpipe.stages.video)
+    fps: int = Field(default=24, ge=1, le=120)  # frames per second of the videos
 
 
 class CameraInfo(StrictModel):
@@ -336,7 +346,9 @@ def _mesh(name: str, base: Path, where: dict) -> tuple[trimesh.Trimesh, np.ndarr
     if name == "compact":
         return products.compact_pan(), _upright()
     if name == "head":
-        return meshes.head(), np.eye(4)
+        if not (HEAD_DIR / "head.obj").is_file():
+            raise InputError(f"the bundled head {HEAD_DIR}/head.obj is missing: run {HEAD_DIR}/make_head.py", **where)
+        return products.load_mesh(HEAD_DIR / "head.obj"), np.eye(4)
     if name == "cylinder":
         return meshes.cylinder(40.0, 120.0), np.eye(4)
     path = base / name
@@ -381,6 +393,11 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
         info = SceneFile.model_validate(data)
     except ValidationError as err:
         raise input_error(err, where) from None
+    side, samples = max(info.scene.resolution), info.output.antialias
+    if side * samples > MAX_RENDER_SIDE:
+        raise InputError(f"is {samples}: {samples} x {samples} samples per pixel of a {side} px frame make a "
+                         f"{side * samples} px render, above the {MAX_RENDER_SIDE} px a render may be; use fewer",
+                         **where(("output", "antialias")))  # fmt: skip
 
     materials, thicknesses, hashes, sources = [], [], [], {}
     for i, layer in enumerate(info.layer):

@@ -13,6 +13,8 @@ Tasks (``id``: what it writes under the output folder):
   that several workers share a product, rendered as the product's plan file says (no task plans again); waits for
   the plan, the materials its layers use and their validation: a material that failed validation is not rendered
   unless ``keep_going`` (then its frames say so in their header);
+- ``video:P`` (products with a turntable of 2 or more frames): ``frames/P/turntable.mp4`` and ``turntable.webp``
+  from its frames (:mod:`kmpipe.stages.video`), keyed by its render tasks and the video settings;
 - ``reports``: ``reports/index.html`` and ``summary.json`` over every validated product;
 - ``sheet``: the contact sheet, a row per rendered product and a column per angle.
 

@@ -61,7 +61,7 @@ def execute(
     ...     'layer = [{ material = "self", thickness = "40 um" }]\n')
     >>> summary = execute(plan_run(line / "recipe.toml", line / "out"))
     >>> summary.ran, summary.frames, summary.sheet.name, summary.failed
-    (4, 2, 'sheet.png', [])
+    (5, 2, 'sheet.png', [])
     >>> execute(plan_run(line / "recipe.toml", line / "out")).ran  # everything cached now
     0
     """

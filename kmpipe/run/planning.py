@@ -24,6 +24,7 @@ from kmpipe.run.tasks import (
     do_reports,
     do_sheet,
     do_validate,
+    do_video,
     remember_recipe,
     task_key,
 )
@@ -169,10 +170,13 @@ def plan_run(
     >>> recipe = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "demo" / "recipe.toml"
     >>> plan = plan_run(recipe, pathlib.Path(tempfile.mkdtemp()))  # nothing is written: the graph and what is cached
     >>> sorted(collections.Counter(task.kind for task in plan.tasks.values()).items())
-    [('material', 5), ('plan', 6), ('render', 12), ('reports', 1), ('sheet', 1), ('validate', 5)]
+    [('material', 5), ('plan', 6), ('render', 12), ('reports', 1), ('sheet', 1), ('validate', 5), ('video', 6)]
     >>> {task.state for task in plan.tasks.values()}
     {'pending'}
     """
+    from kmpipe.formats.scene import OutputInfo
+    from kmpipe.stages.video import MIN_FRAMES
+
     recipe = remember_recipe(load_recipe(recipe_path))
     out_dir = Path(out_dir).absolute()  # tasks may run in other processes, in other folders
     info = recipe.info
@@ -270,7 +274,7 @@ def plan_run(
         claims.folder(rel(folder), whose, "outputs.frames", own=True)
         # The plan: keyed by what the renders read, written once beside the frames; every render task reads it.
         plan_id, plan_file = f"plan:{slug(product.name)}", folder / PLAN_FILE
-        plan_key = task_key("plan", data, files, upstream)
+        plan_key = task_key("plan", _without_videos(data), files, upstream)
         scene_args = {"recipe": str(recipe.path), "product": product.name, "materials": materials}
         add(Task("plan", slug(product.name), product.name, deps + checks, plan_key, (rel(plan_file),),
                  do_plan, {**scene_args, "out": str(plan_file)}, (rel(folder),)), whose, "outputs.frames")  # fmt: skip
@@ -291,6 +295,14 @@ def plan_run(
             )
             add(task, whose, "outputs.frames")
             chunks.append(task.id)
+        video = OutputInfo.model_validate(data.get("output") or {})  # checked when the recipe was loaded
+        formats = list(dict.fromkeys(video.video))
+        if frame_count >= MIN_FRAMES and formats:  # the turntable's videos, once all its frames are rendered
+            add(Task("video", slug(product.name), product.name, (*checks, *chunks),
+                     task_key("video", [tasks[c].key for c in chunks], formats, video.fps),
+                     tuple(rel(folder / f"turntable.{f}") for f in formats), do_video,
+                     {"frames": [str(folder / f"frame_{i:03d}.exr") for i in range(frame_count)], "out": str(folder),
+                      "formats": formats, "fps": video.fps}), whose, "outputs.frames")  # fmt: skip
         width, height = (data.get("scene") or {}).get("resolution") or (256, 256)
         rows.append((product.name, product.shade or product.name, chunks, folder, frame_count, width * height))
 
@@ -354,6 +366,15 @@ def mark_cached(plan: RunPlan) -> None:
             blocked_by_validation(plan, task)
 
 
+def _without_videos(data: dict) -> dict:
+    """A product's scene data less the videos' settings (``[output] video, fps``), which key its video task only:
+    another frame rate makes the videos again, not the frames."""
+    if "output" not in data:
+        return data
+    output = {k: v for k, v in data["output"].items() if k not in ("video", "fps")}
+    return {**data, "output": output}
+
+
 def _manifest_inputs(manifest: Path) -> dict[str, Path]:
     """The files a manifest's fit reads (the manifest, its measurement CSVs, a certificate), by name; no data read."""
     from kmpipe.formats.manifest import manifest_files
@@ -372,9 +393,9 @@ def _scene_files(recipe: Recipe, data: dict, hashed: Callable[[Path], str]) -> d
 
 
 def blocked_by_validation(plan: RunPlan, task: Task) -> bool:
-    """Skip the plan and the renders of a product whose materials failed validation (unless keep_going); True when
-    it was skipped."""
-    if task.kind not in ("plan", "render"):
+    """Skip the plan, the renders and the videos of a product whose materials failed validation (unless keep_going);
+    True when it was skipped."""
+    if task.kind not in ("plan", "render", "video"):
         return False
     failed = failed_validations(plan, task)
     if failed and not plan.keep_going:

@@ -21,8 +21,8 @@ PLAN_FILE = "plan.json"
 
 
 #: What a task can do: make a product's material (measure, replay or fit), validate it, plan its render, render frames
-#: of its turntable; index the line's reports, lay out its contact sheet.
-KINDS = ("material", "validate", "plan", "render", "reports", "sheet")
+#: of its turntable, make the turntable's videos; index the line's reports, lay out its contact sheet.
+KINDS = ("material", "validate", "plan", "render", "video", "reports", "sheet")
 
 
 def task_key(*parts) -> str:
@@ -169,6 +169,14 @@ def _frame_done(folder: Path, frame: int, key: str | None) -> bool:
         return read_header(exr).get("task_key") == key
     except (OSError, ValueError):
         return False
+
+
+def do_video(frames: list[str], out: str, formats: list[str], fps: int) -> dict:
+    """A product's turntable videos (``turntable.mp4``, ``.webp``) in ``out`` from its ``frames`` (EXR, their PNGs
+    beside them), ``fps`` frames a second."""
+    from kmpipe.stages.video import write_turntable_videos
+
+    return {"videos": [str(p) for p in write_turntable_videos(frames, out, formats=formats, fps=fps)]}
 
 
 def do_reports(entries: list[tuple[str, str]], out: str) -> dict:

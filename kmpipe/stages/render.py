@@ -24,13 +24,15 @@ import numpy as np
 from kmpipe.errors import InputError
 from kmpipe.formats import files
 from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
-from kmpipe.formats.scene import Scene, load_scene
+from kmpipe.formats.scene import HEAD_DIR, Scene, load_scene
 from kmpipe.physics.optical_tables import exact_stack, parse_mode, working_space
 from kmpipe.stages.render_plan import GROUND_EXTENT, SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene
 from kmpipe.stages.sheet import write_contact_sheet
+from kmpipe.stages.video import write_turntable_videos
 from renderer.image_io import write_exr, write_png
 from renderer.layers import render_layers
 from renderer.meshes import card
+from renderer.products import load_mesh
 from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight, Prop
 from renderer.scene import Scene as RendererScene
 from renderer.skin import render_skin
@@ -79,10 +81,12 @@ def renderer_scenes(
         "lobes": lobes,
         "substrate_lobe": plan.skin_lobe,
         "scattering": plan.scattering if scattering else None,
-        "props": () if ground is None else (ground,),
+        "props": () if ground is None else (ground,),  # and, on the bundled head, its eyes (_eyes)
         "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
+        "supersampling": info.output.antialias,
     }
-    return [RendererScene(model=_turntable_model(scene, angle), **common) for angle in angles_deg]
+    models = [_turntable_model(scene, angle) for angle in angles_deg]
+    return [RendererScene(model=m, **{**common, "props": common["props"] + _eyes(scene, m)}) for m in models]
 
 
 def _surface(scene: Scene, plan: ScenePlan) -> ChannelStack | Precomposed:
@@ -237,6 +241,18 @@ def _ground(scene: Scene) -> Prop | None:
     return Prop(card(side, side), (scene.info.ground.reflectance,) * 3, model)
 
 
+#: The bundled head's eyes: (file in kmpipe.formats.scene.HEAD_DIR, linear-RGB Lambert albedo), drawn as props.
+EYES = (("eyes_sclera.obj", (0.62, 0.58, 0.54)), ("eyes_iris.obj", (0.11, 0.06, 0.03)),
+        ("eyes_pupil.obj", (0.01, 0.01, 0.01)))  # fmt: skip
+
+
+def _eyes(scene: Scene, model: np.ndarray) -> tuple[Prop, ...]:
+    """The bundled head's eyes (sclera, iris, pupil) turned with it by ``model``; none on any other mesh."""
+    if scene.info.scene.mesh != "head":
+        return ()
+    return tuple(Prop(load_mesh(HEAD_DIR / name), albedo, model) for name, albedo in EYES)
+
+
 def render_scene(
     scene: str | Path | Scene,
     out_dir: str | Path,
@@ -260,7 +276,8 @@ def render_scene(
     frame without it as well (into ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below,
     thesis figure 5.58). ``frames`` renders only those frames of the turntable (indices); ``header`` adds attributes
     to every frame's EXR header. Returns the files written, EXR and PNG of each frame in order (then the A/B frames
-    and sheet).
+    and sheet, then the turntable's videos, :func:`kmpipe.stages.video.write_turntable_videos`, when every frame
+    was rendered).
 
     >>> import kmpipe, pathlib, tempfile, numpy as np
     >>> from kmpipe.stages.fit import fit_manifests
@@ -310,6 +327,7 @@ def render_scene(
         "illuminant": info.scene.illuminant,
         "camera_elevation_deg": float(info.camera.elevation_deg),
         "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
+        "antialias": f"{info.output.antialias} x {info.output.antialias} supersampling",
     }
     blur = plan.scattering if scattering else None
     header["subsurface_scattering"] = (
@@ -345,6 +363,11 @@ def render_scene(
             on_frame(done + 1, len(chosen))
     if ab_scattering:
         written.append(_ab_sheet(out_dir, scene, len(angles)))
+    if frames is None:  # the whole turntable: its videos (none for one frame, or with [output] video = [])
+        exrs = [out_dir / f"frame_{i:03d}.exr" for i in chosen]
+        written += write_turntable_videos(
+            exrs, out_dir, formats=info.output.video, fps=info.output.fps, inputs=scene.inputs
+        )
     return written
 
 

@@ -382,9 +382,21 @@ def plan_scene(scene: Scene) -> ScenePlan:
         notes.append("ground: none")
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
     notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
+    notes.append(_antialias_note(scene))
     skin_lobe, scattering = _skin_lobe(scene), _skin_scattering(scene)
     notes += _skin_notes(scene, skin_lobe, scattering)
     return ScenePlan(tables, size, tuple(wanted), skin_lobe, scattering, tuple(notes))
+
+
+def _antialias_note(scene: Scene) -> str:
+    """What antialiasing the frames get and what it costs (``[output] antialias``)."""
+    k = scene.info.output.antialias
+    width, height = scene.info.scene.resolution
+    if k == 1:
+        return "antialiasing: none (antialias = 1: one sample per pixel, silhouettes are stair-stepped)"
+    given = "antialias" in scene.info.output.model_fields_set
+    return (f"antialiasing: {k} x {k} supersampling ({k * k} samples per pixel, rendered at {width * k} x {height * k} "
+            f"and box-filtered; flat regions keep their exact values){'' if given else ' (the default)'}")  # fmt: skip
 
 
 def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
