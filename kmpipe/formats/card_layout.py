@@ -14,12 +14,17 @@ import os
 from pathlib import Path
 
 import tomli_w
-from pydantic import ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field
 
 from instruments.drawdown_card.layout import Layout, LayoutError, Marker, PrintedArea, Region
 from kmpipe.errors import InputError
 from kmpipe.formats.atomic_write import write_text_atomically
-from kmpipe.formats.toml_input import StrictModel, format_field, input_error, located_in, read_toml, toml_line
+from kmpipe.formats.toml_input import (
+    StrictModel,
+    format_field,
+    read_model,
+    toml_line,
+)
 
 _HEADER = "# kmpipe drawdown card layout (docs/formats.md); lengths in mm from the card's top-left corner\n"
 
@@ -80,11 +85,7 @@ def load_card_layout(path: str | os.PathLike[str]) -> Layout:
         card, a printed area or region over a marker's quiet zone, ...).
     """
     path = Path(path)
-    text, data = read_toml(path, "card layout")
-    try:
-        info = LayoutFile.model_validate(data)
-    except ValidationError as err:
-        raise input_error(err, located_in(path, text)) from None
+    text, info = read_model(path, "card layout", LayoutFile)
     try:
         return Layout(
             width_mm=info.card.width_mm,

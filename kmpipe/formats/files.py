@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import os
 import re
 import stat
@@ -249,3 +250,23 @@ def safe_name(name: object, *, path: str | os.PathLike | None = None, field: str
     if problem is not None:
         raise InputError(problem, path=path, line=line, field=field)
     return name
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number (JSON has no NaN or Infinity)")
+
+
+def read_json(path: str | os.PathLike[str], kind: str, what: str) -> object:
+    """The parsed JSON of the regular file ``path`` (at most ``LIMITS[kind]`` bytes), strictly: ``NaN`` and
+    ``Infinity`` are refused, as JSON has neither. InputError naming the file (and line) and saying what it should
+    have been ("not a {what}: not valid JSON: ...", "not a {what}: the JSON is nested too deeply")."""
+    path = Path(path)
+    text = read_text(path, kind)
+    try:
+        return json.loads(text, parse_constant=_refuse_constant)
+    except json.JSONDecodeError as err:
+        raise InputError(f"not a {what}: not valid JSON: {err.msg}", path=path, line=err.lineno) from None
+    except ValueError as err:  # NaN or Infinity, or an integer too long to convert
+        raise InputError(f"not a {what}: not valid JSON: {err}", path=path) from None
+    except RecursionError:
+        raise InputError(f"not a {what}: the JSON is nested too deeply", path=path) from None

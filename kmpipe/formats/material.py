@@ -165,10 +165,6 @@ def write_material(material: Material, path: str | Path) -> None:
     write_text_atomically(path, json.dumps(document, indent=1, allow_nan=False) + "\n")
 
 
-def _refuse_constant(name: str):
-    raise ValueError(f"{name} is not a JSON number (JSON has no NaN or Infinity)")
-
-
 def read_material(path: str | Path) -> Material:
     """Read a material JSON written by :func:`write_material`; InputError naming the file and the field on any
     problem: a file that is not a regular file of at most ``files.LIMITS["material"]`` bytes, not UTF-8 JSON
@@ -182,19 +178,10 @@ def read_material(path: str | Path) -> Material:
     ...     read_material(broken)
     ... except InputError as err:
     ...     print(err.message)
-    not valid JSON: NaN is not a JSON number (JSON has no NaN or Infinity)
+    not a kmpipe material: not valid JSON: NaN is not a JSON number (JSON has no NaN or Infinity)
     """
     path = Path(path)
-    text = files.read_text(path, "material")
-    try:
-        doc = json.loads(text, parse_constant=_refuse_constant)
-    except json.JSONDecodeError as err:
-        raise InputError(f"not valid JSON: {err.msg}", path=path, line=err.lineno) from None
-    except ValueError as err:  # NaN or Infinity, or an integer too long to convert
-        raise InputError(f"not valid JSON: {err}", path=path) from None
-    except RecursionError:
-        raise InputError("not a kmpipe material: the JSON is nested too deeply", path=path) from None
-    return _check_document(doc, path)
+    return _check_document(files.read_json(path, "material", "kmpipe material"), path)
 
 
 class _Fields:

@@ -11,12 +11,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, field_validator
 
 from kmpipe.errors import InputError
 from kmpipe.formats.files import name_problem, sha256
 from kmpipe.formats.manifest import Thickness, parse_thickness_mm
-from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
+from kmpipe.formats.toml_input import StrictModel, read_model, toml_line
 
 
 class PlanSample(StrictModel):
@@ -79,11 +79,7 @@ def plan_digest(path: Path) -> str:
 
 def load_plan(path: Path) -> Plan:
     """Read and check a measurement plan; InputError naming the file, line and field on any problem."""
-    text, data = read_toml(path, "measurement plan")
-    try:
-        plan = Plan.model_validate(data)
-    except ValidationError as err:
-        raise input_error(err, located_in(path, text)) from None
+    text, plan = read_model(path, "measurement plan", Plan)
     names = [b.name for b in plan.backing]
     for i, film in enumerate(plan.film):
         if film.over not in names:

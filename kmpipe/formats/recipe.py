@@ -29,7 +29,7 @@ from kmpipe.errors import InputError
 from kmpipe.formats.files import UNLIMITED, regular_file
 from kmpipe.formats.scene import MAX_LAYERS, RenderSettings, SceneFile
 from kmpipe.formats.thresholds import Thresholds
-from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml, toml_line
+from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_model, toml_line
 from kmpipe.physics.colorimetry import illuminant_key
 
 #: The material of the product itself, in its layer stack.
@@ -246,11 +246,7 @@ def load_recipe(path: str | Path) -> Recipe:
     [('Lipstick Classic Red', 'replay'), ('Lipstick Berry', 'replay')]
     """
     path = Path(path)
-    text, data = read_toml(path, "recipe")
-    try:
-        info = RecipeFile.model_validate(data)
-    except ValidationError as err:
-        raise input_error(err, located_in(path, text)) from None
+    text, info = read_model(path, "recipe", RecipeFile)
     recipe = Recipe(path, text, info, _thresholds(info.validation, path, text))
     _check_template(recipe)
     names = {p.name for p in info.product}

@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 import tomllib
 from pathlib import Path
+from typing import TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -134,3 +135,17 @@ def input_error(err: ValidationError, where) -> InputError:
 def located_in(path: Path, text: str):
     """``where`` for :func:`input_error`: a location in the TOML ``text`` of ``path``."""
     return lambda loc: {"path": path, "line": toml_line(text, loc), "field": format_field(loc)}
+
+
+#: A strict model read from a file (:func:`read_model`).
+Model = TypeVar("Model", bound=StrictModel)
+
+
+def read_model(path: Path, what: str, model: type[Model]) -> tuple[str, Model]:
+    """The text of the TOML file ``path`` (:func:`read_toml`) and its contents validated as ``model``; a pydantic
+    error becomes an InputError naming the file, the line and the field (:func:`input_error`)."""
+    text, data = read_toml(path, what)
+    try:
+        return text, model.model_validate(data)
+    except ValidationError as err:
+        raise input_error(err, located_in(path, text)) from None

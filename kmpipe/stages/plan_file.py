@@ -182,10 +182,6 @@ class _PlanFile(_Strict):
     explain: list[str]
 
 
-def _refuse_constant(name: str):
-    raise ValueError(f"{name} is not a JSON number (JSON has no NaN or Infinity)")
-
-
 def read_plan(path: str | Path, scene: Scene) -> ScenePlan:
     r"""Read the plan file at ``path`` and check that it is a plan of ``scene``; the plan, as planned.
 
@@ -212,13 +208,7 @@ def read_plan(path: str | Path, scene: Scene) -> ScenePlan:
     scene
     """
     path = Path(path)
-    text = files.read_text(path, "JSON")
-    try:
-        document = json.loads(text, parse_constant=_refuse_constant)
-    except json.JSONDecodeError as err:
-        raise InputError(f"not a render plan: not valid JSON ({err.msg})", path=path, line=err.lineno) from None
-    except (ValueError, RecursionError) as err:
-        raise InputError(f"not a render plan: not valid JSON ({err})", path=path) from None
+    document = files.read_json(path, "JSON", "kmpipe render plan")
     if not isinstance(document, dict) or document.get("format") != PLAN_FORMAT:
         found = document.get("format") if isinstance(document, dict) else None
         raise InputError(f"not a kmpipe render plan: format is {found!r}, expected {PLAN_FORMAT!r}", path=path,
