@@ -52,13 +52,14 @@ def _scenes(folder: Path) -> dict[str, Path]:
     manifests = [REPO / "recipes" / "samples" / name / "manifest.toml" for name in ("F1", "B1", "L1")]
     fit_manifests(manifests, folder / "materials")
     shutil.copy(REPO / "recipes" / "scenes" / "head_makeup.png", folder)
+    (folder.parent / "head").symlink_to(REPO / "recipes" / "head")  # the skin maps face.toml names (../head/)
     face = (REPO / "recipes" / "scenes" / "face.toml").read_text(encoding="utf-8")
     close_up = face.replace("[camera]", "[camera]\ndistance_mm = 160.0")
     scenes = {}
     for label, text in (("head (masked)", face), ("skin fills the frame", close_up)):
         for size in SIZES:
             path = folder / f"{label.split()[0]}_{size}.toml"
-            path.write_text(text.replace("resolution = [384, 384]", f"resolution = [{size}, {size}]"), encoding="utf-8")
+            path.write_text(text.replace("resolution = [512, 512]", f"resolution = [{size}, {size}]"), encoding="utf-8")
             scenes[f"{label}|{size}"] = path
     return scenes
 
@@ -76,7 +77,8 @@ def _measure(path: Path) -> tuple[float, float, float, str]:
 def run() -> list[list[str]]:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
-        for key, path in _scenes(Path(folder)).items():
+        (Path(folder) / "face").mkdir()
+        for key, path in _scenes(Path(folder) / "face").items():
             label, size = key.split("|")
             skin_share, with_sss, without, mode = _measure(path)
             cost = with_sss - without

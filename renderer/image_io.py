@@ -76,7 +76,7 @@ def write_exr(
     _write(path, image, spec)
 
 
-def _read(path: str | Path, pixel_type, pixels: bool = True) -> tuple[np.ndarray | None, oiio.ImageSpec]:
+def read_image(path: str | Path, pixel_type, pixels: bool = True) -> tuple[np.ndarray | None, oiio.ImageSpec]:
     """An image file's pixels (height, width, channels) as OIIO's ``pixel_type``, top row first, and its spec.
 
     The header is read first: an image larger than :data:`MAX_IMAGE_SIDE` on a side or with more than
@@ -111,13 +111,13 @@ def _attributes(spec: oiio.ImageSpec) -> dict[str, AttributeValue]:
 
 def read_exr(path: str | Path) -> tuple[np.ndarray, dict[str, AttributeValue]]:
     """Read an EXR: the pixels as float32 (height, width, channels), top row first, and all header attributes."""
-    pixels, spec = _read(path, oiio.FLOAT)
+    pixels, spec = read_image(path, oiio.FLOAT)
     return pixels.astype(np.float32, copy=False), _attributes(spec)
 
 
 def read_header(path: str | Path) -> dict[str, AttributeValue]:
     """The header attributes of an image file, without reading its pixels."""
-    return _attributes(_read(path, oiio.FLOAT, pixels=False)[1])
+    return _attributes(read_image(path, oiio.FLOAT, pixels=False)[1])
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -144,7 +144,7 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
 
 def read_png(path: str | Path) -> np.ndarray:
     """Read a PNG's 8-bit codes as uint8 (height, width, channels), top row first, without decoding sRGB."""
-    return _read(path, oiio.UINT8)[0].astype(np.uint8, copy=False)
+    return read_image(path, oiio.UINT8)[0].astype(np.uint8, copy=False)
 
 
 def read_pixels(path: str | Path) -> tuple[np.ndarray, list[str]]:
@@ -154,7 +154,7 @@ def read_pixels(path: str | Path) -> tuple[np.ndarray, list[str]]:
     Raises :class:`OSError` when the file cannot be read and :class:`ValueError` when it is larger than
     :data:`MAX_IMAGE_SIDE` on a side or has more than :data:`MAX_CHANNELS` channels.
     """
-    pixels, spec = _read(path, oiio.FLOAT)
+    pixels, spec = read_image(path, oiio.FLOAT)
     return pixels.astype(np.float64), list(spec.channelnames)
 
 

@@ -27,13 +27,30 @@ import numpy as np
 import trimesh
 
 from renderer import context
+from renderer.background import clear_colour, fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.meshes import GpuMesh
 from renderer.program import Program
-from renderer.scene import MAX_LIGHTS, Camera, Light, OrthographicCamera, PointLight, Scene, supersampled
-from renderer.shadows import MARGIN, ShadowMap, light_view_projection, shadow_matrix
-from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed, Specular
+from renderer.scene import MAX_LIGHTS, Light, Scene, supersampled
+from renderer.shadows import MARGIN, ShadowMap, light_camera, shadow_matrix
+from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed
+from renderer.textures import array_texture, float_texture, raw_depth_sampler
+from renderer.uniforms import (
+    COMPOSITE_UNIT,
+    LAST_UNIT,
+    SHADOW_DEPTH_UNIT,
+    SHADOW_UNIT,
+    SUBSTRATE_UNIT,
+    detail_textures,
+    environment_textures,
+    location,
+    set_detail,
+    set_environment,
+    set_lights,
+    set_specular,
+    set_view,
+)
 
 _program: Program | None = None
 
@@ -44,32 +61,6 @@ def _layers_program() -> Program:
     if _program is None:
         _program = Program("km_layers.vert", "km_layers.frag")
     return _program
-
-
-def _location(program: Program, name: str) -> int:
-    location = GL.glGetUniformLocation(program.handle, name)
-    if location < 0:
-        raise RuntimeError(f"km_layers.frag: no active uniform named {name!r}")
-    return location
-
-
-def _float_texture(data: np.ndarray, linear: bool) -> int:
-    """Upload ``data`` (rows, columns, 4) float as an RGBA32F texture, row 0 at t = 0; clamped at the edges."""
-    rows, columns = data.shape[:2]
-    texture = GL.glGenTextures(1)
-    GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
-    GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 4)
-    GL.glTexImage2D(
-        GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, columns, rows, 0, GL.GL_RGBA, GL.GL_FLOAT,
-        np.ascontiguousarray(data, dtype=np.float32),
-    )  # fmt: skip
-    filtering = GL.GL_LINEAR if linear else GL.GL_NEAREST
-    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, filtering)
-    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, filtering)
-    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE)
-    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)
-    GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
-    return texture
 
 
 def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> np.ndarray:
@@ -177,40 +168,12 @@ def _composite_texels(stack: Precomposed) -> np.ndarray:
     return texels
 
 
-def _array_texture(texels: np.ndarray) -> int:
-    """Upload (layers, rows, columns, 4) float texels as a bilinear RGBA32F 2-D array texture, clamped at the edges."""
-    layers, rows, columns = texels.shape[:3]
-    texture = GL.glGenTextures(1)
-    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
-    GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 4)
-    GL.glTexImage3D(
-        GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_RGBA32F, columns, rows, layers, 0, GL.GL_RGBA, GL.GL_FLOAT,
-        np.ascontiguousarray(texels, dtype=np.float32),
-    )  # fmt: skip
-    for parameter, value in (
-        (GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR),
-        (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-        (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE),
-        (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
-    ):
-        GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, parameter, value)
-    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
-    return texture
-
-
 def _world_bounds(draws: Sequence[tuple[trimesh.Trimesh, np.ndarray]]) -> tuple[np.ndarray, float]:
     """Centre (mm) and radius (mm) of a sphere around every mesh, placed by its model matrix."""
     points = np.concatenate([np.asarray(mesh.vertices) @ model[:3, :3].T + model[:3, 3] for mesh, model in draws])
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre = 0.5 * (lo + hi)
     return centre, float(np.max(np.linalg.norm(points - centre, axis=1)))
-
-
-# Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12, the substrate map 13.
-# Every sampler has a unit of its own (GL forbids samplers of different types on one unit, even unused ones).
-_COMPOSITE_UNIT = 2 * MAX_LAYERS
-_SHADOW_UNIT = _COMPOSITE_UNIT + 1
-_SUBSTRATE_UNIT = _SHADOW_UNIT + MAX_LIGHTS
 
 
 def render_layers(scene: Scene) -> np.ndarray:
@@ -229,9 +192,9 @@ def render_layers(scene: Scene) -> np.ndarray:
 
 def _render_layers(scene: Scene) -> np.ndarray:
     with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(*scene.resolution) as target:
-        target.clear((*scene.background, 0.0))
+        target.clear((*clear_colour(scene), 0.0))
         surface_pass.draw(target, split=False)
-        return target.read_rgba()[..., :3]
+        return fill_background(target.read_rgba(), scene)
 
 
 class SurfacePass:
@@ -265,9 +228,12 @@ class SurfacePass:
         self.camera, self.lights = scene.camera, list(scene.lights)
         self.view_projection = self.camera.projection_matrix(width / height) @ self.camera.view_matrix()
         self.shadow_map_size = scene.shadow_map_size
+        self.environment, self.occlusion = scene.environment, scene.occlusion
+        self.normal_map, self.substrate_roughness = scene.normal_map, scene.substrate_roughness
         context.make_current(width, height)
         self.program = _layers_program()
         self.textures: list[int] = []
+        self.raw_depth_sampler = raw_depth_sampler()
         self.shadow_maps: list[ShadowMap] = []
         self.gpu_meshes: list[GpuMesh] = []
         try:
@@ -277,22 +243,29 @@ class SurfacePass:
             raise
 
     def _prepare(self) -> None:
-        self.gpu_meshes = [GpuMesh(m) for m, _ in self.draws]
+        self.gpu_meshes = [GpuMesh(m, self.occlusion if i == 0 else None) for i, (m, _) in enumerate(self.draws)]
         centre, radius = _world_bounds(self.draws)
         self.shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
+        self.shadow_ranges = np.ones((MAX_LIGHTS, 2))
         self.casts = np.zeros(MAX_LIGHTS, dtype=np.int32)
         self.shadow_texel_mm = 2.0 * (1.0 + MARGIN) * radius / self.shadow_map_size  # the map spans the sphere
         for index, light in enumerate(self.lights):
             if light.cast_shadows:
                 self.shadow_maps.append(ShadowMap(self.shadow_map_size))
-                light_matrix = light_view_projection(light, centre, radius)
+                frustum = light_camera(light, centre, radius)
+                light_matrix = frustum.projection_matrix(1.0) @ frustum.view_matrix()
+                self.shadow_ranges[index] = (frustum.near, frustum.far)
                 self.shadow_maps[-1].render(
                     list(zip(self.gpu_meshes, [m for _, m in self.draws], strict=True)), light_matrix
                 )
                 self.shadow_matrices[index] = shadow_matrix(light_matrix)
                 self.casts[index] = 1
         if self.composite_texels is not None:
-            self.textures.append(_array_texture(self.composite_texels))
+            self.textures.append(array_texture(self.composite_texels))
+        self.environment_textures = [] if self.environment is None else environment_textures(self.environment)
+        self.textures += self.environment_textures
+        self.detail_textures = detail_textures(self.normal_map, self.substrate_roughness)
+        self.textures += [t for t in self.detail_textures if t]
 
     def draw(self, target: Framebuffer, *, split: bool) -> None:
         """Draw the mesh and the props into ``target`` (bound, cleared by the caller).
@@ -306,22 +279,27 @@ class SurfacePass:
         program.use()
         program.set_mat4("u_view_projection", self.view_projection)
         program.set_mat4("u_view", self.camera.view_matrix())
-        GL.glUniform1i(_location(program, "u_split"), int(split))
-        _set_lights(program, self.lights, self.casts, self.shadow_matrices)
+        GL.glUniform1i(location(program, "u_split"), int(split))
+        set_lights(program, self.lights, self.casts, self.shadow_matrices, self.shadow_ranges)
         GL.glUniform1fv(
-            _location(program, "u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
+            location(program, "u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
         )
-        _set_view(program, self.camera)
+        set_view(program, self.camera)
         shadow_textures = iter(shadow_map.texture for shadow_map in self.shadow_maps)
         for index in range(MAX_LIGHTS):
-            GL.glUniform1i(_location(program, f"u_shadow{index}"), _SHADOW_UNIT + index)
-            GL.glActiveTexture(GL.GL_TEXTURE0 + _SHADOW_UNIT + index)
-            GL.glBindTexture(GL.GL_TEXTURE_2D, next(shadow_textures) if self.casts[index] else 0)
+            texture = next(shadow_textures) if self.casts[index] else 0
+            for unit, name in ((SHADOW_UNIT + index, "u_shadow"), (SHADOW_DEPTH_UNIT + index, "u_shadow_depth")):
+                GL.glUniform1i(location(program, f"{name}{index}"), unit)
+                GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+                GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+            GL.glBindSampler(SHADOW_DEPTH_UNIT + index, self.raw_depth_sampler)
+        GL.glActiveTexture(GL.GL_TEXTURE0)  # textures created later bind to unit 0, which the stack rebinds
         for index in range(MAX_LAYERS):
-            GL.glUniform1i(_location(program, f"u_table{index}"), index)
-            GL.glUniform1i(_location(program, f"u_map{index}"), MAX_LAYERS + index)
-        GL.glUniform1i(_location(program, "u_composite"), _COMPOSITE_UNIT)
-        GL.glUniform1i(_location(program, "u_substrate_map"), _SUBSTRATE_UNIT)
+            GL.glUniform1i(location(program, f"u_table{index}"), index)
+            GL.glUniform1i(location(program, f"u_map{index}"), MAX_LAYERS + index)
+        GL.glUniform1i(location(program, "u_composite"), COMPOSITE_UNIT)
+        GL.glUniform1i(location(program, "u_substrate_map"), SUBSTRATE_UNIT)
+        set_environment(program, self.environment, self.environment_textures)
         created: list[int] = []
         try:
             # The product (or the skin).
@@ -329,12 +307,14 @@ class SurfacePass:
                 created += _bind_channel_stack(program, self.channel)
             else:
                 _bind_precomposed(program, self.stack.n_layers, self.textures[0])
-            _set_specular(program, self.lobes_bottom_up)
-            GL.glUniform1i(_location(program, "u_skin"), 1)
+            set_specular(program, self.lobes_bottom_up)
+            GL.glUniform1i(location(program, "u_skin"), 1)
+            set_detail(program, self.normal_map, self.detail_textures)
             _draw(program, self.gpu_meshes[0], self.model)
             # The props: bare Lambert substrates in RGB.
-            _set_specular(program, [])
-            GL.glUniform1i(_location(program, "u_skin"), 0)
+            set_specular(program, [])
+            set_detail(program, None, [0, 0, 0])
+            GL.glUniform1i(location(program, "u_skin"), 0)
             for prop, gpu_mesh, (_, prop_model) in zip(self.props, self.gpu_meshes[1:], self.draws[1:], strict=True):
                 created += _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
                 _draw(program, gpu_mesh, prop_model)
@@ -345,7 +325,10 @@ class SurfacePass:
                 GL.glDeleteTextures(len(created), created)
 
     def release(self) -> None:
-        """Free the meshes, textures and shadow maps."""
+        """Free the meshes, textures, shadow maps and the sampler."""
+        if self.raw_depth_sampler:
+            GL.glDeleteSamplers(1, [self.raw_depth_sampler])
+            self.raw_depth_sampler = 0
         if self.textures:
             GL.glDeleteTextures(len(self.textures), self.textures)
         self.textures = []
@@ -361,10 +344,11 @@ class SurfacePass:
 
 
 def _unbind_units() -> None:
-    for unit_index in range(_SUBSTRATE_UNIT + 1):
+    for unit_index in range(LAST_UNIT + 1):
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
         GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
         GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+        GL.glBindSampler(unit_index, 0)
     GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
@@ -374,57 +358,10 @@ def _draw(program: Program, gpu_mesh: GpuMesh, model: np.ndarray) -> None:
     gpu_mesh.draw()
 
 
-def _set_lights(program: Program, lights: Sequence[Light], casts: np.ndarray, shadow_matrices: np.ndarray) -> None:
-    is_point = np.zeros(MAX_LIGHTS, dtype=np.int32)
-    vectors = np.zeros((MAX_LIGHTS, 3))
-    radiance = np.zeros((MAX_LIGHTS, 3))
-    reference = np.ones(MAX_LIGHTS)
-    for index, light in enumerate(lights):
-        radiance[index] = light.radiance
-        if isinstance(light, PointLight):
-            is_point[index], vectors[index], reference[index] = 1, light.position, light.reference_distance_mm
-        else:
-            vectors[index] = light.to_light()
-    GL.glUniform1i(_location(program, "u_light_count"), len(lights))
-    GL.glUniform1iv(_location(program, "u_light_is_point"), MAX_LIGHTS, is_point)
-    GL.glUniform3fv(_location(program, "u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
-    GL.glUniform3fv(_location(program, "u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
-    GL.glUniform1fv(_location(program, "u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
-    GL.glUniform1iv(_location(program, "u_light_shadow"), MAX_LIGHTS, casts)
-    GL.glUniformMatrix4fv(
-        _location(program, "u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
-    )
-
-
-def _set_view(program: Program, camera: Camera) -> None:
-    """The view direction: constant (towards the camera) for an orthographic camera, else from the eye position."""
-    orthographic = isinstance(camera, OrthographicCamera)
-    GL.glUniform1i(_location(program, "u_orthographic"), int(orthographic))
-    if orthographic:
-        program.set_vec3("u_view_vector", np.linalg.inv(camera.view_matrix())[:3, 2])
-    else:
-        program.set_vec3("u_view_vector", camera.eye)
-
-
-def _set_specular(program: Program, lobes: Sequence[Specular | None]) -> None:
-    """Lobes of the films bottom-up (slots 0 .. MAX_LAYERS - 1) and of the substrate (slot MAX_LAYERS)."""
-    slots = MAX_LAYERS + 1
-    on = np.zeros(slots, dtype=np.int32)
-    roughness = np.ones(slots)
-    f0 = np.zeros(slots)
-    for index, lobe in enumerate(lobes):
-        if lobe is not None:
-            on[index], roughness[index], f0[index] = 1, lobe.roughness, lobe.f0
-    GL.glUniform1i(_location(program, "u_any_specular"), int(on.any()))
-    GL.glUniform1iv(_location(program, "u_specular_on"), slots, on)
-    GL.glUniform1fv(_location(program, "u_roughness"), slots, roughness.astype(np.float32))
-    GL.glUniform1fv(_location(program, "u_f0"), slots, f0.astype(np.float32))
-
-
 def _bind_precomposed(program: Program, n_layers: int, texture: int) -> None:
-    GL.glUniform1i(_location(program, "u_precomposed"), 1)
-    GL.glUniform1i(_location(program, "u_layer_count"), n_layers)
-    GL.glActiveTexture(GL.GL_TEXTURE0 + _COMPOSITE_UNIT)
+    GL.glUniform1i(location(program, "u_precomposed"), 1)
+    GL.glUniform1i(location(program, "u_layer_count"), n_layers)
+    GL.glActiveTexture(GL.GL_TEXTURE0 + COMPOSITE_UNIT)
     GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
 
 
@@ -442,40 +379,40 @@ def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
     for index, (x, _, _) in enumerate(arrays):
         sample_count[index] = x.size
         use_map[index] = maps[index] is not None
-    GL.glUniform1i(_location(program, "u_precomposed"), 0)
-    GL.glUniform1i(_location(program, "u_layer_count"), len(arrays))
-    GL.glUniform1i(_location(program, "u_group_count"), groups)
-    GL.glUniform1iv(_location(program, "u_sample_count"), MAX_LAYERS, sample_count)
-    GL.glUniform1iv(_location(program, "u_use_map"), MAX_LAYERS, use_map)
-    GL.glUniform1fv(_location(program, "u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
-    GL.glUniform4fv(_location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
+    GL.glUniform1i(location(program, "u_precomposed"), 0)
+    GL.glUniform1i(location(program, "u_layer_count"), len(arrays))
+    GL.glUniform1i(location(program, "u_group_count"), groups)
+    GL.glUniform1iv(location(program, "u_sample_count"), MAX_LAYERS, sample_count)
+    GL.glUniform1iv(location(program, "u_use_map"), MAX_LAYERS, use_map)
+    GL.glUniform1fv(location(program, "u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
+    GL.glUniform4fv(location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
     basis_groups = np.zeros((3, 4 * (MAX_CHANNELS // 4)))
     if channel["substrate_map"] is not None:
         basis_groups[:, :channels] = channel["substrate_map"][1]
-    GL.glUniform1i(_location(program, "u_use_substrate_map"), int(channel["substrate_map"] is not None))
+    GL.glUniform1i(location(program, "u_use_substrate_map"), int(channel["substrate_map"] is not None))
     GL.glUniform4fv(
-        _location(program, "u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
+        location(program, "u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
     )
-    GL.glUniform3fv(_location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
+    GL.glUniform3fv(location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
     # Every texture is created first and bound afterwards: creating one binds it to the active unit, which would
     # unbind what an earlier layer had put there.
     units: list[tuple[int, int]] = []
     created = []
     for index, (x, r0, t) in enumerate(arrays):
-        created.append(_float_texture(_table_texels(x, r0, t, groups), linear=False))
+        created.append(float_texture(_table_texels(x, r0, t, groups), linear=False))
         units.append((index, created[-1]))
         if maps[index] is not None:
             texels = np.zeros((*maps[index].shape, 4))
             texels[..., 0] = maps[index][::-1]  # row 0 of the map is the top (v = 1)
-            created.append(_float_texture(texels, linear=True))
+            created.append(float_texture(texels, linear=True))
             units.append((MAX_LAYERS + index, created[-1]))
     if channel["substrate_map"] is not None:
         texels = np.zeros((*channel["substrate_map"][0].shape[:2], 4))
         texels[..., :3] = channel["substrate_map"][0][::-1]  # row 0 of the map is the top (v = 1)
-        created.append(_float_texture(texels, linear=True))
-        units.append((_SUBSTRATE_UNIT, created[-1]))
+        created.append(float_texture(texels, linear=True))
+        units.append((SUBSTRATE_UNIT, created[-1]))
     bound = dict(units)
-    for unit in [*range(2 * MAX_LAYERS), _SUBSTRATE_UNIT]:
+    for unit in [*range(2 * MAX_LAYERS), SUBSTRATE_UNIT]:
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
         GL.glBindTexture(GL.GL_TEXTURE_2D, bound.get(unit, 0))
     return created

@@ -2,7 +2,7 @@
 
 Meshes are plain :class:`trimesh.Trimesh` objects in scene units (mm) with per-vertex normals and texture
 coordinates (``mesh.visual.uv``); :func:`upload` turns one into a :class:`GpuMesh` whose vertex array holds
-positions at attribute location 0, normals at 1 and uv at 2.
+positions at attribute location 0, normals at 1, uv at 2 and ambient occlusion at 3.
 """
 
 from __future__ import annotations
@@ -57,17 +57,22 @@ def sphere(radius: float, n_latitude: int = 48, n_longitude: int = 96) -> trimes
 
 
 class GpuMesh:
-    """A mesh in GL buffers: an interleaved float32 vertex buffer (position, normal, uv) and a uint32 index buffer.
+    """A mesh in GL buffers: an interleaved float32 vertex buffer (position, normal, uv, ambient occlusion) and a
+    uint32 index buffer.
 
     Use as a context manager (or call :meth:`release`) to free the buffers in the same context.
     """
 
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
-        """Upload ``mesh``; it needs per-vertex normals and ``mesh.visual.uv``."""
+    def __init__(self, mesh: trimesh.Trimesh, occlusion: np.ndarray | None = None) -> None:
+        """Upload ``mesh``; it needs per-vertex normals and ``mesh.visual.uv``. ``occlusion``: per-vertex ambient
+        occlusion in [0, 1] (:mod:`renderer.occlusion`; None: 1, nothing occluded)."""
         uv = getattr(mesh.visual, "uv", None)
         if uv is None or len(uv) != len(mesh.vertices):
             raise ValueError("the mesh has no per-vertex texture coordinates (mesh.visual.uv)")
-        vertices = np.hstack([mesh.vertices, mesh.vertex_normals, uv]).astype(np.float32)
+        ao = np.ones(len(mesh.vertices)) if occlusion is None else np.asarray(occlusion, dtype=float).reshape(-1)
+        if ao.shape != (len(mesh.vertices),) or not (np.all(np.isfinite(ao)) and 0.0 <= ao.min() <= ao.max() <= 1.0):
+            raise ValueError(f"occlusion needs one value in [0, 1] per vertex ({len(mesh.vertices)})")
+        vertices = np.hstack([mesh.vertices, mesh.vertex_normals, uv, ao[:, None]]).astype(np.float32)
         indices = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
         self.index_count = indices.size
         self.vao = GL.glGenVertexArrays(1)
@@ -78,7 +83,7 @@ class GpuMesh:
         GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
         GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, indices.nbytes, indices, GL.GL_STATIC_DRAW)
         stride = vertices.shape[1] * vertices.itemsize
-        for location, (offset, size) in enumerate(((0, 3), (3, 3), (6, 2))):
+        for location, (offset, size) in enumerate(((0, 3), (3, 3), (6, 2), (8, 1))):
             GL.glEnableVertexAttribArray(location)
             GL.glVertexAttribPointer(
                 location, size, GL.GL_FLOAT, GL.GL_FALSE, stride, ctypes.c_void_p(offset * vertices.itemsize)
@@ -175,6 +180,43 @@ def cylinder(radius: float, height: float, n_azimuth: int = 128, n_height: int =
     i, j = np.meshgrid(np.arange(n_height), np.arange(n_azimuth), indexing="ij")
     v00 = (i * row + j).ravel()
     faces = np.concatenate([np.stack([v00, v00 + 1, v00 + row + 1], -1), np.stack([v00, v00 + row + 1, v00 + row], -1)])
+    return trimesh.Trimesh(
+        vertices, faces, vertex_normals=normals, visual=trimesh.visual.TextureVisuals(uv=uv), process=False
+    )
+
+
+def sweep(
+    width: float, floor_depth: float, cove_radius: float, wall_height: float, n_cove: int = 32
+) -> trimesh.Trimesh:
+    """A photo studio's seamless paper sweep (a cyclorama), in mm: a floor that curves up into a wall.
+
+    In its own frame (+y up, the camera towards +z): the floor at y = 0 from z = ``floor_depth`` to z = 0, a quarter
+    circle of ``cove_radius`` R about (y, z) = (R, 0) up to (R, -R), then the wall at z = -R up to y =
+    ``wall_height``; ``width`` along x, centred on x = 0. Normals face the camera side (up on the floor, +z on the
+    wall, towards the circle's centre on the cove), exact per vertex; uv = (x / width + 1/2, arc length / total).
+    """
+    if not (width > 0.0 and floor_depth > 0.0 and cove_radius > 0.0 and wall_height > cove_radius):
+        raise ValueError("a sweep needs width, floor depth and cove radius > 0 and a wall higher than the cove")
+    t = np.linspace(0.0, np.pi / 2.0, n_cove + 1)
+    z = np.concatenate([[floor_depth], -cove_radius * np.sin(t), [-cove_radius]])
+    y = np.concatenate([[0.0], cove_radius * (1.0 - np.cos(t)), [wall_height]])
+    normal_z = np.concatenate([[0.0], np.sin(t), [1.0]])
+    normal_y = np.concatenate([[1.0], np.cos(t), [0.0]])
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(z), np.diff(y)))])
+    x = np.linspace(-width / 2.0, width / 2.0, 33)
+    xx, row = np.meshgrid(x, np.arange(len(z)), indexing="xy")
+    vertices = np.stack([xx, y[row], z[row]], axis=-1).reshape(-1, 3)
+    normals = np.stack([np.zeros_like(xx), normal_y[row], normal_z[row]], axis=-1).reshape(-1, 3)
+    uv = np.stack([xx / width + 0.5, arc[row] / arc[-1]], axis=-1).reshape(-1, 2)
+    columns = len(x)
+    i, j = np.meshgrid(np.arange(len(z) - 1), np.arange(columns - 1), indexing="ij")
+    v00 = (i * columns + j).ravel()
+    v01, v10, v11 = v00 + 1, v00 + columns, v00 + columns + 1
+    faces = np.concatenate([np.stack([v00, v01, v11], axis=-1), np.stack([v00, v11, v10], axis=-1)])
+    corners = vertices[faces]
+    facing = np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                       normals[faces[:, 0]])  # fmt: skip
+    faces[facing < 0.0] = faces[facing < 0.0][:, ::-1]
     return trimesh.Trimesh(
         vertices, faces, vertex_normals=normals, visual=trimesh.visual.TextureVisuals(uv=uv), process=False
     )

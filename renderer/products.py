@@ -264,6 +264,34 @@ def mesh_files(path: str | Path) -> list[Path]:
     return found
 
 
+def _flattened(scene: trimesh.Scene) -> trimesh.Trimesh | None:
+    """The scene's triangle meshes in world coordinates as one mesh, in node order, keeping each part's own vertex
+    normals (turned by the inverse transpose of its node's transform) and, when every part has them, its uv; None when
+    it holds no triangle mesh. (trimesh's own concatenation recomputes the normals.)"""
+    parts = []
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geometry = scene.geometry[name]
+        if isinstance(geometry, trimesh.Trimesh) and len(geometry.faces):
+            parts.append((geometry, np.asarray(transform, dtype=float)))
+    if not parts:
+        return None
+    vertices, normals, faces, uvs = [], [], [], []
+    offset = 0
+    for geometry, transform in parts:
+        vertices.append(trimesh.transform_points(geometry.vertices, transform))
+        turned = np.asarray(geometry.vertex_normals, dtype=float) @ np.linalg.inv(transform[:3, :3])
+        normals.append(turned / np.maximum(np.linalg.norm(turned, axis=1, keepdims=True), 1e-300))
+        faces.append(np.asarray(geometry.faces) + offset)
+        uvs.append(getattr(geometry.visual, "uv", None))
+        offset += len(geometry.vertices)
+    visual = None
+    if all(uv is not None and len(uv) == len(g.vertices) for uv, (g, _) in zip(uvs, parts, strict=True)):
+        visual = trimesh.visual.TextureVisuals(uv=np.concatenate(uvs))
+    return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), vertex_normals=np.concatenate(normals),
+                           visual=visual, process=False)  # fmt: skip
+
+
 def load_mesh(path: str | Path) -> trimesh.Trimesh:
     """Load a product mesh (mm) from an OBJ, PLY, glTF or GLB file as one :class:`trimesh.Trimesh`.
 
@@ -287,7 +315,7 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         options = {"skip_materials": True} if path.suffix.lower() == ".obj" else {}
         loaded = trimesh.load(str(path), process=False, maintain_order=True, **options)
         if isinstance(loaded, trimesh.Scene):  # several meshes, node transforms: one mesh in world coordinates
-            loaded = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=True)
+            loaded = _flattened(loaded)
     except Exception as error:  # trimesh's loaders raise many types for malformed files
         raise ValueError(f"{path}: cannot read a mesh: {error}") from error
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import trimesh
 
+from renderer.environment import Environment
 from renderer.stack import ChannelStack, Precomposed, Specular
 
 Vec3 = tuple[float, float, float]
@@ -111,12 +112,24 @@ class DirectionalLight:
 
     ``radiance`` is linear RGB and sets the scale of the render: a surface of albedo ``a`` at angle theta to the
     light renders as ``a * radiance * cos(theta)``. For a physical reflected radiance from an irradiance ``E``
-    (W m^-2 at normal incidence), pass ``E / pi``.
+    (W m^-2 at normal incidence), pass ``E / pi``. ``angle_deg`` is the light's angular diameter (an area light seen
+    from the scene, such as a softbox): its shadows get penumbrae of ``2 tan(angle / 2)`` mm per mm between occluder
+    and receiver (0: hard).
     """
 
     direction: Vec3
     radiance: Vec3
     cast_shadows: bool = True
+    angle_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.angle_deg < 180.0:
+            raise ValueError(f"a directional light's angular diameter is 0 to 180 degrees, got {self.angle_deg}")
+
+    @property
+    def softness(self) -> float:
+        """Penumbra width (mm) per mm between occluder and receiver: 2 tan(angle / 2)."""
+        return 2.0 * float(np.tan(np.radians(self.angle_deg) / 2.0))
 
     def to_light(self) -> np.ndarray:
         """Unit vector (3,) from a surface towards the light."""
@@ -129,20 +142,27 @@ class PointLight:
 
     ``radiance`` is linear RGB at ``reference_distance_mm``: a white Lambert surface facing the light from that
     distance renders as ``radiance``; at distance d it renders as ``radiance * (reference_distance_mm / d)^2 *
-    cos(theta)``.
+    cos(theta)``. ``size_mm`` is the emitter's diameter: its shadows get penumbrae of ``size (d_r - d_o) / d_o``
+    (d_o, d_r the occluder's and the receiver's distances from the light; 0: hard).
     """
 
     position: Vec3
     radiance: Vec3
     reference_distance_mm: float
     cast_shadows: bool = True
+    size_mm: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (np.all(np.isfinite(self.position)) and self.reference_distance_mm > 0.0):
+        if not (np.all(np.isfinite(self.position)) and self.reference_distance_mm > 0.0 and self.size_mm >= 0.0):
             raise ValueError(
-                f"a point light needs a finite position and a reference distance > 0 mm, got {self.position} "
-                f"and {self.reference_distance_mm}"
+                f"a point light needs a finite position, a reference distance > 0 mm and a size >= 0 mm, got "
+                f"{self.position}, {self.reference_distance_mm} and {self.size_mm}"
             )
+
+    @property
+    def softness(self) -> float:
+        """The emitter's diameter (mm)."""
+        return float(self.size_mm)
 
 
 Light = DirectionalLight | PointLight
@@ -182,6 +202,44 @@ class Scattering:
             )
 
 
+@dataclass(frozen=True)
+class GradientBackground:
+    """A background that fades vertically from ``top`` (the image's top row) to ``bottom`` (linear RGB), smoothly
+    (smoothstep in the row's height), as a studio's graded paper seen behind the product."""
+
+    top: Vec3
+    bottom: Vec3
+
+
+#: Film thickness (mm) that smooths a normal map's detail by 1/e (:class:`NormalMap`): fine lines of skin are tens of
+#: micrometres deep, and a foundation of about that thickness fills them (thesis figure 3.20).
+FILL_MM = 0.01
+
+
+@dataclass(frozen=True)
+class NormalMap:
+    """Fine surface detail of the mesh (pores, fine lines) over its uv, smoothed where films lie over it.
+
+    ``normals``: tangent-space unit vectors (rows, columns, 3), row 0 at v = 1, x along +u, y along +v, z out of the
+    surface (the OpenGL / glTF convention). ``film_thickness_mm``: the films' total thickness over uv (a 2-D map, row 0
+    at v = 1, or a number); the detail's tilt is scaled by exp(-thickness / ``fill_mm``).
+    """
+
+    normals: np.ndarray
+    film_thickness_mm: np.ndarray | float = 0.0
+    fill_mm: float = FILL_MM
+
+    def __post_init__(self) -> None:
+        normals = np.asarray(self.normals, dtype=float)
+        if normals.ndim != 3 or normals.shape[2] != 3 or min(normals.shape[:2]) < 1:
+            raise ValueError(f"a normal map needs (rows, columns, 3) vectors, got shape {normals.shape}")
+        if not (np.all(np.isfinite(normals)) and normals[..., 2].min() > 0.0):
+            raise ValueError("a normal map's vectors must be finite and point out of the surface (z > 0)")
+        film = np.asarray(self.film_thickness_mm, dtype=float)
+        if film.ndim not in (0, 2) or not (np.all(np.isfinite(film)) and film.min() >= 0.0 and self.fill_mm > 0.0):
+            raise ValueError("a normal map's film thickness must be a number or a 2-D map >= 0 mm, fill_mm > 0")
+
+
 #: Most samples per pixel side (4: 16 samples a pixel).
 MAX_SUPERSAMPLING = 4
 #: Largest side (pixels) of a supersampled render: the GL framebuffers' limit here.
@@ -219,7 +277,18 @@ class Scene:
     shadow_map_size
         Texels per side of each shadow map.
     background
-        Linear RGB of pixels no surface covers (any float, unclamped).
+        What pixels no surface covers show: linear RGB (any float, unclamped) or a :class:`GradientBackground`;
+        a visible ``environment`` takes its place.
+    environment
+        Light from an equirectangular environment (:class:`renderer.environment.Environment`) on every surface,
+        through the films and into the skin like a light's, or None.
+    normal_map
+        Fine detail of ``mesh`` over its uv (:class:`NormalMap`), used by every pass that shades it; None: none.
+    substrate_roughness
+        The substrate lobe's Beckmann roughness over uv (rows, columns), row 0 at v = 1, instead of its own; None.
+    occlusion
+        Ambient occlusion of each vertex of ``mesh`` in [0, 1] (:func:`renderer.occlusion.vertex_occlusion`),
+        darkening the environment's light; None: 1 everywhere.
     supersampling
         Samples per pixel along each side (1 to :data:`MAX_SUPERSAMPLING`): the frame is rendered at ``resolution``
         times this and box-filtered down (:func:`supersampled`), so silhouettes get partial coverage while a region of
@@ -237,7 +306,11 @@ class Scene:
     model: np.ndarray | None = None
     props: Sequence[Prop] = ()
     shadow_map_size: int = 1024
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    background: tuple[float, float, float] | GradientBackground = (0.0, 0.0, 0.0)
+    environment: Environment | None = None
+    occlusion: np.ndarray | None = None
+    normal_map: NormalMap | None = None
+    substrate_roughness: np.ndarray | None = None
     supersampling: int = 1
 
 

@@ -69,10 +69,10 @@ def _up_for(direction: np.ndarray) -> tuple[float, float, float]:
     return tuple(up)
 
 
-def light_view_projection(
+def light_camera(
     light: DirectionalLight | PointLight, centre: Sequence[float] | np.ndarray, radius: float
-) -> np.ndarray:
-    """The world -> light clip matrix (4, 4) whose frustum encloses the sphere of ``centre`` (mm) and ``radius`` (mm).
+) -> OrthographicCamera | PerspectiveCamera:
+    """The light's view (a camera) whose frustum encloses the sphere of ``centre`` (mm) and ``radius`` (mm).
 
     The sphere should bound every shadow caster and receiver; the frusta are described in the module docstring.
 
@@ -110,6 +110,14 @@ def light_view_projection(
             far=distance + h,
             fov_y_deg=float(np.degrees(2.0 * np.arctan(tangent))),
         )
+    return camera
+
+
+def light_view_projection(
+    light: DirectionalLight | PointLight, centre: Sequence[float] | np.ndarray, radius: float
+) -> np.ndarray:
+    """The world -> light clip matrix (4, 4) of :func:`light_camera`: its frustum encloses the sphere."""
+    camera = light_camera(light, centre, radius)
     return camera.projection_matrix(1.0) @ camera.view_matrix()
 
 

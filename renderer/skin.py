@@ -30,6 +30,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from renderer import context
+from renderer.background import clear_colour, fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.layers import SurfacePass
@@ -131,11 +132,11 @@ def _render_skin(scene: Scene) -> np.ndarray:
     width, height = scene.resolution
     with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(width, height, targets=3) as target:
         target.bind()
-        for index, value in enumerate(((*scene.background, 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
+        for index, value in enumerate(((*clear_colour(scene), 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
             GL.glClearBufferfv(GL.GL_COLOR, index, np.asarray(value, dtype=np.float32))
         GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
         surface_pass.draw(target, split=True)
-        surface = target.read_rgba(0)[..., :3]
+        surface = fill_background(target.read_rgba(0), scene)
         if scene.scattering is None:
             return surface + target.read_rgba(1)[..., :3]
         return surface + scatter(target, scene.camera, scene.scattering)

@@ -21,6 +21,9 @@ import numpy as np
 MAX_LAYERS = 4
 #: Most channels (bands) per table; the layer pass works on groups of four.
 MAX_CHANNELS = 32
+#: A film's lobe is weighted by its cover, clamp(thickness / LOBE_COVER_MM, 0, 1) (mm): where a thickness map fades to
+#: nothing the film's surface, and its gloss, fade with it (a film of zero thickness leaves the surface as it was).
+LOBE_COVER_MM = 1e-3
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from kmpipe.formats.scene import load_scene, referenced_files
 from kmpipe.run.execute import execute
 from kmpipe.run.planning import plan_run
 from kmpipe.stages.fit import fit_manifests
-from renderer.image_io import write_map
+from renderer.image_io import write_exr, write_map
 
 ROOT = Path(__file__).resolve().parents[1]
 F1 = ROOT / "recipes" / "samples" / "F1" / "manifest.toml"
@@ -46,11 +46,13 @@ def material(tmp_path_factory) -> Path:
 
 def _every_file_field(folder: Path, material: Path, mesh: str) -> Path:
     """A scene using every field that reads a file: a material, a thickness map, a mesh file (``mesh``: an OBJ, which
-    trimesh writes with a material library and texture, or a glTF with external buffers), an albedo texture and a
-    reflectance CSV; returns its path."""
+    trimesh writes with a material library and texture, or a glTF with external buffers), an albedo texture, a normal
+    map, a reflectance CSV and an environment image; returns its path."""
     u, v = np.mgrid[0:8, 0:8] / 7.0
     write_map(folder / "map.png", np.stack([u, v, u * v], axis=-1))
     write_map(folder / "albedo.png", np.stack([0.6 + 0.2 * u, 0.5 * np.ones_like(u), 0.4 + 0.1 * v], axis=-1))
+    write_map(folder / "normal.png", np.stack([0.5 + 0.1 * u, 0.5 * np.ones_like(u), np.ones_like(u)], axis=-1))
+    write_exr(folder / "sky.exr", np.full((8, 16, 3), 0.5, np.float32), {})
     box = trimesh.creation.box(extents=(40.0, 40.0, 40.0))
     uv = (box.vertices[:, :2] - box.vertices[:, :2].min(axis=0)) / 40.0
     box.visual = trimesh.visual.TextureVisuals(uv=uv)
@@ -68,6 +70,10 @@ resolution = [32, 32]
 [substrate]
 reflectance = "base.csv:base"
 albedo_texture = "albedo.png"
+normal_map = "normal.png"
+
+[environment]
+file = "sky.exr"
 
 [[layer]]
 material = "{material}"
@@ -91,7 +97,9 @@ def test_a_scene_lists_every_file_it_opens_and_the_cache_lists_the_same(tmp_path
     mine = {p for p in opened if tmp_path in p.parents or p == material.resolve()}
     buffers = {p.name for p in tmp_path.glob("*.bin")}  # a glTF's external buffers (an OBJ has none)
     assert (len(buffers) > 0) == mesh.endswith(".gltf")
-    names = {"scene.toml", "F1.json", "map.png", "albedo.png", mesh, "base.csv", *buffers}
+    library = {"material.mtl", "material_0.png"} if mesh.endswith(".obj") else set()  # an OBJ's MTL and its map
+    names = {"scene.toml", "F1.json", "map.png", "albedo.png", "normal.png", "sky.exr", mesh, "base.csv", *buffers}
+    names |= library
     assert {p.name for p in inputs} == names  # each file-reading field is listed ...
     assert mine <= inputs, f"opened but not listed: {sorted(mine - inputs)}"  # ... and nothing read is missing
     # the files run's cache key hashes: every input but the scene file itself and the materials (hashed by task)

@@ -2,8 +2,8 @@
 
 A recipe names the line (illuminant, accuracy or render mode), the validation thresholds, the scene every product is
 rendered in (the tables of a scene file, :mod:`kmpipe.formats.scene`, at the top level: ``[scene]`` without name,
-product
-and shade, ``[substrate]`` or ``[skin]``, ``[[light]]``, ``[ground]``, ``[camera]``, ``[turntable]``, ``[output]``;
+product and shade, ``[substrate]`` or ``[skin]``, ``[[light]]``, ``[ground]`` or ``[backdrop]``, ``[environment]``,
+``[camera]``, ``[turntable]``, ``[output]``;
 no ``[[layer]]``), the products and the outputs. Each product has a name, a shade, where its material comes from (a
 CS-2000 session to measure live and fit, a recorded session to replay and fit, measurements to fit, or a material
 file; or none, for a look made of other products' materials), its layer stack (top first; ``material`` is ``"self"``
@@ -116,7 +116,9 @@ class OutputsInfo(StrictModel):
 
 
 #: Scene-file tables a recipe holds at its top level, for every product.
-SCENE_TABLES = ("scene", "substrate", "skin", "light", "ground", "camera", "turntable", "output")
+SCENE_TABLES = (
+    "scene", "substrate", "skin", "light", "ground", "backdrop", "environment", "camera", "turntable", "output",
+)  # fmt: skip
 
 
 class RecipeFile(StrictModel):
@@ -127,6 +129,8 @@ class RecipeFile(StrictModel):
     skin: dict[str, Any] | None = None
     light: list[dict[str, Any]] | None = None
     ground: dict[str, Any] | None = None
+    backdrop: dict[str, Any] | None = None
+    environment: dict[str, Any] | None = None
     camera: dict[str, Any] | None = None
     turntable: dict[str, Any] | None = None
     output: dict[str, Any] | None = None

@@ -3,7 +3,8 @@
 A scene file names the mesh (a built-in shape or a mesh file), the films top first (kmpipe material files, each with
 a uniform thickness or a thickness map, and optionally a specular lobe), the substrate (a product's base) or the skin
 (a substrate that scatters light beneath its surface, with a lobe of its own), up to four
-directional or point lights, an optional ground under the product, a camera and, optionally, a turntable. Paths are
+directional or point lights (:mod:`kmpipe.formats.scene_lighting`: their sizes, an environment light, a ground or a
+backdrop), a camera and, optionally, a turntable. Paths are
 relative to the scene file. Every problem is an :class:`~kmpipe.errors.InputError` naming the file, line and field.
 
 Camera: world +y is up. The camera looks at the centre of the mesh's bounding box from ``distance_mm`` away (by
@@ -29,8 +30,17 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from kmpipe.errors import InputError
 from kmpipe.formats import files
-from kmpipe.formats.manifest import ThicknessOrZero, parse_thickness_mm
+from kmpipe.formats.manifest import Thickness, ThicknessOrZero, parse_thickness_mm
 from kmpipe.formats.material import Material, read_material
+from kmpipe.formats.scene_lighting import (
+    MAX_DISTANCE_MM,
+    BackdropInfo,
+    EnvironmentInfo,
+    GroundInfo,
+    LightInfo,
+    environment_radiance,
+)
+from kmpipe.formats.surface_maps import ThicknessMapInfo, albedo_texture, normal_map, roughness_map, thickness_map
 from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_toml
 from kmpipe.physics.colorimetry import illuminant_key
 from kmpipe.physics.optical_tables import parse_mode
@@ -45,18 +55,14 @@ BUILTIN_MESHES = ("card", "sphere", "lipstick", "compact", "head", "cylinder")
 #: The bundled head (``mesh = "head"``): MakeHuman's CC0 head and neck with its uv and eyes (recipes/head/README.md).
 HEAD_DIR = Path(__file__).resolve().parents[2] / "recipes" / "head"
 COLORCHECKER = "ColorChecker N Ohta"
+#: Frame size (width, height in pixels) when a scene gives none: a look on skin, and a packshot (a product alone).
+SKIN_RESOLUTION = (1024, 1024)
+PACKSHOT_RESOLUTION = (512, 512)
 #: Largest image side (pixels). A frame costs about 200 bytes a pixel on llvmpipe (several RGBA32F targets of 16
 #: bytes, the depth buffer, the read-back and the float64 copies of tone mapping and writing): ~3.4 GB at
 #: 4096 x 4096, four times that at 8192 x 8192.
 MAX_RESOLUTION = 4096
 _PIXELS = Annotated[int, Field(ge=1, le=MAX_RESOLUTION)]
-#: Largest light radiance (linear RGB per channel, 1 = a white Lambert surface renders as white): far above any
-#: exposure the output's +-20 EV can bring back, far below float32's range after the inverse-square falloff.
-MAX_RADIANCE = 1e6
-#: Largest distance or coordinate (mm) of a light or the camera: 100 m.
-MAX_DISTANCE_MM = 1e5
-#: Shortest direction vector of a directional light (its length is otherwise free).
-MIN_DIRECTION = 1e-6
 
 
 class RenderSettings(StrictModel):
@@ -93,7 +99,7 @@ class SceneInfo(RenderSettings):
     product: str | None = None
     shade: str | None = None
     mesh: str = Field(default="card", min_length=1)
-    resolution: tuple[_PIXELS, _PIXELS] = (256, 256)
+    resolution: tuple[_PIXELS, _PIXELS] | None = None  # None: SKIN_RESOLUTION on skin, else PACKSHOT_RESOLUTION
     shadow_map: int | None = Field(default=None, ge=64, le=8192)
 
 
@@ -101,6 +107,8 @@ class SubstrateInfo(StrictModel):
     reflectance: float | str
     albedo_texture: str | None = None
     albedo_encoding: Literal["srgb", "linear"] | None = None
+    normal_map: str | None = Field(default=None, min_length=1)  # tangent-space fine detail over uv
+    normal_fill: Thickness = "10 um"  # film thickness that smooths the detail by 1/e
 
     @field_validator("reflectance")
     @classmethod
@@ -121,15 +129,6 @@ class SubstrateInfo(StrictModel):
         return value
 
 
-class ThicknessMapInfo(StrictModel):
-    """A thickness map: ``min`` where the image's channel is 0, ``max`` where it is 1, linear in between."""
-
-    file: str = Field(min_length=1)
-    channel: str = "R"
-    min: ThicknessOrZero = "0 um"
-    max: ThicknessOrZero
-
-
 class SpecularInfo(StrictModel):
     roughness: float = Field(gt=0.0, le=2.0)
     ior: float = Field(default=1.5, ge=1.0, le=4.0)
@@ -147,11 +146,8 @@ class SkinInfo(SubstrateInfo):
     reflectance: float | str = "colorchecker:light skin"
     specular: SpecularInfo | bool = True
     scattering: ScatteringInfo | bool = True
-
-
-_Coordinate = Annotated[float, Field(ge=-MAX_DISTANCE_MM, le=MAX_DISTANCE_MM)]
-_Vector = tuple[_Coordinate, _Coordinate, _Coordinate]
-_Radiance = Annotated[float, Field(ge=0.0, le=MAX_RADIANCE)]
+    roughness_map: str | None = Field(default=None, min_length=1)  # the skin lobe's Beckmann m over uv ...
+    roughness_scale: float = Field(default=1.0, gt=0.0, le=2.0)  # ... m = value (0 to 1) * roughness_scale
 
 
 class LayerInfo(StrictModel):
@@ -165,34 +161,6 @@ class LayerInfo(StrictModel):
         if (self.thickness is None) == (self.thickness_map is None):
             raise ValueError("give either thickness or thickness_map")
         return self
-
-
-class LightInfo(StrictModel):
-    kind: Literal["directional", "point"] = "directional"
-    direction: _Vector | None = None
-    position: _Vector | None = None
-    radiance: tuple[_Radiance, _Radiance, _Radiance] = (1.0, 1.0, 1.0)
-    reference_distance_mm: float | None = Field(default=None, gt=0.0, le=MAX_DISTANCE_MM)
-    shadows: bool = True
-
-    @model_validator(mode="after")
-    def _geometry(self) -> LightInfo:
-        if self.kind == "directional":
-            if self.position is not None or self.reference_distance_mm is not None:
-                raise ValueError("a directional light has a direction, not a position or reference_distance_mm")
-            vector = self.direction if self.direction is not None else (0.0, 0.0, 1.0)
-            if not max(abs(v) for v in vector) >= MIN_DIRECTION:
-                raise ValueError(
-                    f"the direction towards the light must be a non-zero vector (a component of at least "
-                    f"{MIN_DIRECTION:g} in size), got {vector}"
-                )
-        elif self.position is None or self.direction is not None:
-            raise ValueError("a point light has a position (mm) and no direction")
-        return self
-
-
-class GroundInfo(StrictModel):
-    reflectance: float = Field(ge=0.0, le=1.0)
 
 
 #: Samples per pixel side when a scene's [output] gives no ``antialias``: 2 x 2 supersampling, clean silhouettes.
@@ -226,6 +194,8 @@ class SceneFile(StrictModel):
     layer: list[LayerInfo] = Field(min_length=1, max_length=MAX_LAYERS)
     light: list[LightInfo] = Field(default=[LightInfo()], min_length=1, max_length=MAX_LIGHTS)
     ground: GroundInfo | None = None
+    backdrop: BackdropInfo | None = None
+    environment: EnvironmentInfo | None = None
     camera: CameraInfo = CameraInfo()
     turntable: TurntableInfo | None = None
     output: OutputInfo = OutputInfo()
@@ -237,9 +207,21 @@ class SceneFile(StrictModel):
         return self
 
     @property
+    def resolution(self) -> tuple[int, int]:
+        """The frames' size (width, height) in pixels: the scene's, or the default for a look on skin or a packshot."""
+        return default_resolution(self.scene.resolution, self.skin is not None)
+
+    @property
     def base(self) -> SubstrateInfo:
         """What the films lie on: the substrate or the skin."""
         return self.skin if self.skin is not None else self.substrate
+
+
+def default_resolution(given, on_skin: bool) -> tuple[int, int]:
+    """``given`` (width, height) or, if None, :data:`SKIN_RESOLUTION` on skin and :data:`PACKSHOT_RESOLUTION` else."""
+    if given is not None:
+        return tuple(given)
+    return SKIN_RESOLUTION if on_skin else PACKSHOT_RESOLUTION
 
 
 @dataclass(frozen=True)
@@ -249,7 +231,12 @@ class Scene:
     ``thicknesses_mm`` holds, per layer (top first), a number (uniform thickness, mm) or a 2-D array (a thickness
     map over the mesh's uv, mm, row 0 at v = 1). ``material_hashes`` are the SHA-256 of the material files.
     ``substrate`` is the spectral reflectance of the substrate or skin on the materials' wavelength grid;
-    ``albedo`` its albedo texture, linear RGB (rows, columns, 3) over uv (row 0 at v = 1), or None.
+    ``albedo`` its albedo texture, linear RGB (rows, columns, 3) over uv (row 0 at v = 1), or None;
+    ``environment`` the environment's equirectangular radiance (:mod:`kmpipe.formats.scene_lighting`), or None;
+    ``normal_map`` tangent-space unit vectors (rows, columns, 3), ``roughness`` the skin lobe's Beckmann m (rows,
+    columns) and ``occlusion_map`` a mesh file's ambient occlusion (rows, columns), over uv, or None
+    (:mod:`kmpipe.formats.surface_maps`). A mesh file's own base colour and normal map stand in for an albedo
+    texture and a normal map the scene does not name.
     """
 
     path: Path
@@ -262,6 +249,10 @@ class Scene:
     mesh: trimesh.Trimesh
     model: np.ndarray
     inputs: tuple[Path, ...] = ()  # every file the scene reads: the scene, materials, maps, textures, mesh, CSVs
+    environment: np.ndarray | None = None
+    normal_map: np.ndarray | None = None
+    roughness: np.ndarray | None = None
+    occlusion_map: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -357,6 +348,18 @@ def _mesh(name: str, base: Path, where: dict) -> tuple[trimesh.Trimesh, np.ndarr
     return products.load_mesh(path), np.eye(4)
 
 
+def _mesh_and_textures(name: str, base: Path, where: dict):
+    """The mesh and its model matrix (:func:`_mesh`) and, for a mesh file, the textures its material brings
+    (:func:`renderer.mesh_textures.load_mesh_textures`; empty for a built-in mesh)."""
+    from renderer.mesh_textures import MeshTextures, load_mesh_textures
+
+    if name in BUILTIN_MESHES or not (base / name).is_file():
+        return (*_mesh(name, base, where), MeshTextures())
+    files.regular_file(base / name, "mesh", **where)
+    mesh, textures = load_mesh_textures(base / name)
+    return mesh, np.eye(4), textures
+
+
 #: Where a field of a scene is, for error messages: loc (as pydantic gives it) -> InputError's path, line, field.
 Locator = Callable[[tuple], dict]
 
@@ -393,7 +396,10 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
         info = SceneFile.model_validate(data)
     except ValidationError as err:
         raise input_error(err, where) from None
-    side, samples = max(info.scene.resolution), info.output.antialias
+    if info.ground is not None and info.backdrop is not None and info.backdrop.kind == "sweep":
+        raise InputError("a sweep backdrop has its own floor: give [ground] or a [backdrop] sweep, not both",
+                         **where(("backdrop", "kind")))  # fmt: skip
+    side, samples = max(info.resolution), info.output.antialias
     if side * samples > MAX_RENDER_SIDE:
         raise InputError(f"is {samples}: {samples} x {samples} samples per pixel of a {side} px frame make a "
                          f"{side * samples} px render, above the {MAX_RENDER_SIDE} px a render may be; use fewer",
@@ -422,10 +428,10 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
         if layer.thickness is not None:
             thicknesses.append(parse_thickness_mm(layer.thickness, allow_zero=True))
         else:
-            thicknesses.append(_thickness_map(layer.thickness_map, base, where(("layer", i, "thickness_map"))))
+            thicknesses.append(thickness_map(layer.thickness_map, base, where(("layer", i, "thickness_map"))))
 
     try:
-        mesh, model = _mesh(info.scene.mesh, base, {"field": where(("scene", "mesh"))["field"]})
+        mesh, model, textures = _mesh_and_textures(info.scene.mesh, base, {"field": where(("scene", "mesh"))["field"]})
     except ValueError as err:
         raise InputError(
             f"{err} (expected one of {', '.join(BUILTIN_MESHES)} or a mesh file)", **where(("scene", "mesh"))
@@ -434,22 +440,34 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
     key = "skin" if info.skin is not None else "substrate"
     uv = getattr(mesh.visual, "uv", None)
     if uv is None or len(uv) != len(mesh.vertices):
-        mapped = [i for i, layer in enumerate(info.layer) if layer.thickness_map is not None]
-        if mapped or info.base.albedo_texture is not None:
-            field = ("layer", mapped[0], "thickness_map") if mapped else (key, "albedo_texture")
+        mapped = [("layer", i, "thickness_map") for i, layer in enumerate(info.layer) if layer.thickness_map]
+        mapped += [(key, name) for name in ("albedo_texture", "normal_map", "roughness_map")
+                   if getattr(info.base, name, None) is not None]  # fmt: skip
+        if mapped:
             raise InputError(
-                f"the mesh {info.scene.mesh} has no texture coordinates (uv), which thickness maps and albedo "
-                "textures need; give a mesh with uv or uniform thicknesses",
-                **where(field),
+                f"the mesh {info.scene.mesh} has no texture coordinates (uv), which thickness maps, albedo "
+                "textures, normal and roughness maps need; give a mesh with uv or uniform thicknesses",
+                **where(mapped[0]),
             )
         mesh = mesh.copy()
         mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)))  # uniform films: unused
     substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where((key, "reflectance")))
-    albedo = None
+    albedo, normals, roughness = textures.base_colour, textures.normal, None
     if info.base.albedo_texture is not None:
-        albedo = _albedo(info.base, base, where((key, "albedo_texture")))
+        albedo = albedo_texture(info.base.albedo_texture, info.base.albedo_encoding, base,
+                                where((key, "albedo_texture")))  # fmt: skip
+    if info.base.normal_map is not None:
+        size = None if info.base.albedo_texture is None else albedo.shape[:2]
+        normals = normal_map(info.base.normal_map, base, where((key, "normal_map")), size)
+    if info.skin is not None and info.skin.roughness_map is not None:
+        roughness = roughness_map(
+            info.skin.roughness_map, info.skin.roughness_scale, base, where((key, "roughness_map"))
+        )
+    environment = None
+    if info.environment is not None:
+        environment = environment_radiance(info.environment, base, where(("environment", "file")))
     return Scene(path, info, tuple(materials), tuple(thicknesses), tuple(hashes), substrate, albedo, mesh, model,
-                 _inputs(info, path, base))  # fmt: skip
+                 _inputs(info, path, base), environment, normals, roughness, textures.occlusion)  # fmt: skip
 
 
 def _inputs(info: SceneFile, path: Path, base: Path) -> tuple[Path, ...]:
@@ -459,17 +477,23 @@ def _inputs(info: SceneFile, path: Path, base: Path) -> tuple[Path, ...]:
 
 def referenced_files(info: SceneFile, base: Path) -> list[Path]:
     """The files a scene reads besides its materials, relative names resolved against ``base``: thickness maps, a
-    mesh file (and a glTF's buffers and images, :func:`renderer.products.mesh_files`), an albedo texture, a
-    reflectance CSV (what a render's cache key must hash)."""
+    mesh file (and a glTF's buffers and images, :func:`renderer.products.mesh_files`, an OBJ's MTL and its maps,
+    :func:`renderer.mesh_textures.texture_files`), an albedo texture, normal and roughness maps, a reflectance CSV,
+    an environment image (what a render's cache key must hash)."""
+    from renderer.mesh_textures import texture_files
     from renderer.products import mesh_files
 
     found = [base / layer.thickness_map.file for layer in info.layer if layer.thickness_map is not None]
     if info.scene.mesh not in BUILTIN_MESHES:
         found += mesh_files(base / info.scene.mesh)
-    if info.base.albedo_texture is not None:
-        found.append(base / info.base.albedo_texture)
+    if info.scene.mesh not in BUILTIN_MESHES:
+        found += [file for file in texture_files(base / info.scene.mesh) if file not in found]
+    found += [base / name for name in (info.base.albedo_texture, info.base.normal_map,
+                                       getattr(info.base, "roughness_map", None)) if name is not None]  # fmt: skip
     if isinstance(info.base.reflectance, str) and not info.base.reflectance.startswith("colorchecker:"):
         found.append(base / info.base.reflectance.partition(":")[0])
+    if info.environment is not None and info.environment.file is not None:
+        found.append(base / info.environment.file)
     return found
 
 
@@ -482,46 +506,3 @@ def _check_mode(settings: RenderSettings, n_wavelengths: int, where: dict) -> No
                 f"mode {settings.mode} asks for more bands than the materials have wavelengths ({n_wavelengths})",
                 **where,
             )
-
-
-def _albedo(info: SubstrateInfo, base: Path, where: dict) -> np.ndarray:
-    """The albedo texture as linear RGB (rows, columns, 3): sRGB-decoded unless linear (EXR and HDR by default)."""
-    from renderer.image_io import read_pixels
-
-    path = base / info.albedo_texture
-    if not path.is_file():
-        raise InputError(f"names the albedo texture {path}, which does not exist", **where)
-    files.regular_file(path, "image", field=where["field"])
-    try:
-        image, _ = read_pixels(path)
-    except (OSError, ValueError) as err:
-        raise InputError(f"cannot read the albedo texture: {err}", **where) from None
-    if image.shape[2] < 3 or not np.all(np.isfinite(image[..., :3])) or image[..., :3].min() < 0.0:
-        raise InputError(f"{path}: an albedo texture needs finite, non-negative R, G and B channels", **where)
-    encoding = info.albedo_encoding or ("linear" if path.suffix.lower() in (".exr", ".hdr") else "srgb")
-    rgb = image[..., :3]
-    if encoding == "srgb":
-        rgb = colour.models.eotf_sRGB(np.clip(rgb, 0.0, 1.0))
-    if rgb.max() > 1.0:
-        raise InputError(f"{path}: a linear albedo must lie in [0, 1], found up to {rgb.max():.3g}", **where)
-    return rgb
-
-
-def _thickness_map(info: ThicknessMapInfo, base: Path, where: dict) -> np.ndarray:
-    """A layer's thickness map in mm: min + value * (max - min), value the image channel in [0, 1]."""
-    from renderer.image_io import read_channel
-
-    image_path = base / info.file
-    if not image_path.is_file():
-        raise InputError(f"names the thickness map {image_path}, which does not exist", **where)
-    files.regular_file(image_path, "image", field=where["field"])
-    try:
-        value = read_channel(image_path, info.channel)
-    except (OSError, ValueError) as err:
-        raise InputError(f"cannot read the thickness map: {err}", **where) from None
-    if not (np.all(np.isfinite(value)) and value.min() >= 0.0 and value.max() <= 1.0):
-        raise InputError(f"{image_path}: thickness map values must lie in [0, 1] (min maps to min, 1 to max)", **where)
-    lo, hi = parse_thickness_mm(info.min, allow_zero=True), parse_thickness_mm(info.max, allow_zero=True)
-    if not hi > lo:
-        raise InputError(f"thickness_map.max ({info.max}) must exceed thickness_map.min ({info.min})", **where)
-    return lo + value * (hi - lo)

@@ -174,7 +174,7 @@ def plan_run(
     >>> {task.state for task in plan.tasks.values()}
     {'pending'}
     """
-    from kmpipe.formats.scene import OutputInfo
+    from kmpipe.formats.scene import OutputInfo, default_resolution
     from kmpipe.stages.video import MIN_FRAMES
 
     recipe = remember_recipe(load_recipe(recipe_path))
@@ -303,7 +303,7 @@ def plan_run(
                      tuple(rel(folder / f"turntable.{f}") for f in formats), do_video,
                      {"frames": [str(folder / f"frame_{i:03d}.exr") for i in range(frame_count)], "out": str(folder),
                       "formats": formats, "fps": video.fps}), whose, "outputs.frames")  # fmt: skip
-        width, height = (data.get("scene") or {}).get("resolution") or (256, 256)
+        width, height = default_resolution((data.get("scene") or {}).get("resolution"), data.get("skin") is not None)
         rows.append((product.name, product.shade or product.name, chunks, folder, frame_count, width * height))
 
     validations = [t for t in tasks.values() if t.kind == "validate"]

@@ -91,6 +91,7 @@ def write_plan(plan: ScenePlan, scene: Scene, path: str | Path) -> None:
         "shadow_lights": list(plan.shadow_lights),
         "skin_lobe": None if plan.skin_lobe is None else dataclasses.asdict(plan.skin_lobe),
         "scattering": None if plan.scattering is None else dataclasses.asdict(plan.scattering),
+        "ambient_occlusion": plan.ambient_occlusion,
         "notes": list(plan.notes),
         "explain": plan.explain().split("\n"),
     }
@@ -178,6 +179,7 @@ class _PlanFile(_Strict):
     shadow_lights: list[bool] = Field(min_length=1)
     skin_lobe: _Lobe | None
     scattering: _Scattering | None
+    ambient_occlusion: bool
     notes: list[str]
     explain: list[str]
 
@@ -270,7 +272,8 @@ def _checked(fields: _PlanFile, path: Path) -> ScenePlan:
     )
     lobe = None if fields.skin_lobe is None else Specular(**fields.skin_lobe.model_dump())
     scattering = None if fields.scattering is None else Scattering(**fields.scattering.model_dump())
-    plan = ScenePlan(tables, fields.shadow_map_size, tuple(fields.shadow_lights), lobe, scattering, tuple(fields.notes))
+    plan = ScenePlan(tables, fields.shadow_map_size, tuple(fields.shadow_lights), lobe, scattering, tuple(fields.notes),
+                     fields.ambient_occlusion)  # fmt: skip
     if plan.explain() != "\n".join(fields.explain):
         raise _damaged(path, "explain", "it is not the explanation of the plan's other fields")
     return plan

@@ -8,7 +8,7 @@ pass (:func:`renderer.layers.render_layers`) or, on skin, the skin pass with sub
 (:func:`renderer.skin.render_skin`). In the ``rgb`` and ``bands:N`` modes the shader composes the films per channel
 from the tables; in ``exact`` mode the stack is composed here, per wavelength, once for each distinct combination of
 thicknesses in the scene (one for uniform films; one per distinct texel of the thickness maps), and the shader reads
-the result.
+the result (each film's lobe weighted by its cover, :data:`renderer.stack.LOBE_COVER_MM`, as the shader does).
 """
 
 from __future__ import annotations
@@ -24,19 +24,18 @@ import numpy as np
 from kmpipe.errors import InputError
 from kmpipe.formats import files
 from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
-from kmpipe.formats.scene import HEAD_DIR, Scene, load_scene
+from kmpipe.formats.scene import Scene, load_scene
 from kmpipe.physics.optical_tables import exact_stack, parse_mode, working_space
-from kmpipe.stages.render_plan import GROUND_EXTENT, SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene
+from kmpipe.stages import staging
+from kmpipe.stages.render_plan import SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene, scene_reach
 from kmpipe.stages.sheet import write_contact_sheet
 from kmpipe.stages.video import write_turntable_videos
 from renderer.image_io import write_exr, write_png
 from renderer.layers import render_layers
-from renderer.meshes import card
-from renderer.products import load_mesh
-from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight, Prop
+from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight
 from renderer.scene import Scene as RendererScene
 from renderer.skin import render_skin
-from renderer.stack import ChannelStack, LayerTable, Precomposed, Specular
+from renderer.stack import LOBE_COVER_MM, ChannelStack, LayerTable, Precomposed, Specular
 from renderer.tone_map import tone_map
 
 #: Share of the image height the product's bounding sphere fills when the scene gives no camera distance.
@@ -51,8 +50,9 @@ def renderer_scenes(
     The scenes share everything but the product's model matrix (turned about the vertical through its centre by
     the angle, clockwise seen from above): the mesh, the surface (a :class:`~renderer.stack.ChannelStack` of the
     planned tables, or a :class:`~renderer.stack.Precomposed` stack in exact mode; built once), the films' lobes,
-    the lights with the plan's shadows, the camera looking at the centre of the placed mesh, a ground (a
-    :class:`~renderer.scene.Prop`), the skin's lobe and scattering from the plan (``scattering=False``: none).
+    the lights with the plan's shadows, the camera looking at the centre of the placed mesh, a ground or a backdrop
+    (:mod:`kmpipe.stages.staging`), the environment light and, where the plan says, its ambient occlusion, the skin's
+    lobe and scattering from the plan (``scattering=False``: none).
 
     >>> import kmpipe, pathlib, tempfile
     >>> from kmpipe.formats.scene import load_scene
@@ -67,26 +67,31 @@ def renderer_scenes(
     >>> scene = load_scene(folder / "card.toml")
     >>> frames = renderer_scenes(scene, plan_scene(scene), scene.turntable_angles_deg())
     >>> len(frames), frames[0].resolution, frames[0].stack is frames[3].stack
-    (4, (256, 256), True)
+    (4, (512, 512), True)
     """
     info = scene.info
     lobes = [None if layer.specular is None else Specular(**layer.specular.model_dump()) for layer in info.layer]
-    ground = _ground(scene)
+    floor = staging.floor_prop(scene)
     common = {
         "mesh": scene.mesh,
         "stack": _surface(scene, plan),
         "camera": _camera(scene),
         "lights": _lights(scene, plan),
-        "resolution": tuple(info.scene.resolution),
+        "resolution": info.resolution,
         "lobes": lobes,
         "substrate_lobe": plan.skin_lobe,
         "scattering": plan.scattering if scattering else None,
-        "props": () if ground is None else (ground,),  # and, on the bundled head, its eyes (_eyes)
+        "props": () if floor is None else (floor,),  # and, on the bundled head, its eyes (staging.eyes)
         "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
         "supersampling": info.output.antialias,
+        "background": staging.background(scene),
+        "environment": staging.environment(scene),
+        "occlusion": staging.occlusion(scene) if plan.ambient_occlusion else None,
+        "normal_map": staging.normal_map(scene),
+        "substrate_roughness": scene.roughness,
     }
     models = [_turntable_model(scene, angle) for angle in angles_deg]
-    return [RendererScene(model=m, **{**common, "props": common["props"] + _eyes(scene, m)}) for m in models]
+    return [RendererScene(model=m, **{**common, "props": common["props"] + staging.eyes(scene, m)}) for m in models]
 
 
 def _surface(scene: Scene, plan: ScenePlan) -> ChannelStack | Precomposed:
@@ -144,7 +149,11 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
     if scene.albedo is not None:
         maps.append(scene.albedo)
     if not maps:
-        return exact_stack(scene.materials, list(scene.thicknesses_mm), substrate, space)
+        thicknesses = list(scene.thicknesses_mm)
+        reflectance, over_black, attenuation = exact_stack(scene.materials, thicknesses, substrate, space)
+        cover = np.clip(np.asarray(scene.thicknesses_mm, dtype=float) / LOBE_COVER_MM, 0.0, 1.0)
+        attenuation[:-1] *= cover[:, None]
+        return reflectance, over_black, attenuation
     rows, columns = maps[0].shape[:2]
     columns_of_grid = [_on_grid(np.broadcast_to(np.asarray(x, float), (rows, columns)) if np.ndim(x) == 0
                                 else np.asarray(x, float), rows, columns).reshape(rows * columns, 1)
@@ -168,6 +177,7 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
             scene.materials, list(part[:, :n_layers].T), under, space
         )
     inverse = inverse.ravel()
+    attenuation[:-1] *= np.clip(combinations[:, :n_layers].T / LOBE_COVER_MM, 0.0, 1.0)[..., None]  # films' cover
     return (
         reflectance[inverse].reshape(rows, columns, 3),
         over_black[inverse].reshape(rows, columns, 3),
@@ -192,7 +202,7 @@ def _camera(scene: Scene) -> OrthographicCamera | PerspectiveCamera:
             else 3.0 * radius
         )
     eye = tuple(centre + distance * direction)
-    reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
+    reach = scene_reach(scene)
     near = max(distance - 2.0 * reach, 1e-3 * distance)
     far = distance + 2.0 * reach
     if info.projection == "orthographic":
@@ -221,36 +231,12 @@ def _lights(scene: Scene, plan: ScenePlan) -> list[DirectionalLight | PointLight
     for info, shadows in zip(scene.info.light, plan.shadow_lights, strict=True):
         if info.kind == "point":
             reference = info.reference_distance_mm or float(np.linalg.norm(np.subtract(info.position, centre)))
-            lights.append(PointLight(info.position, info.radiance, reference, cast_shadows=shadows))
+            light = PointLight(info.position, info.radiance, reference, cast_shadows=shadows, size_mm=info.size_mm)
+            lights.append(light)
         else:
-            towards = info.direction if info.direction is not None else (0.0, 0.0, 1.0)
-            lights.append(DirectionalLight(tuple(-np.asarray(towards, float)), info.radiance, cast_shadows=shadows))
+            towards = tuple(-np.asarray(info.direction if info.direction is not None else (0.0, 0.0, 1.0), float))
+            lights.append(DirectionalLight(towards, info.radiance, cast_shadows=shadows, angle_deg=info.angle_deg))
     return lights
-
-
-def _ground(scene: Scene) -> Prop | None:
-    """A square floor under the product, :data:`~kmpipe.stages.render_plan.GROUND_EXTENT` radii of its bounding
-    sphere from its centre each way, or None."""
-    if scene.info.ground is None:
-        return None
-    centre, radius, bottom = placed_bounds(scene)
-    side = 2.0 * GROUND_EXTENT * radius
-    model = np.eye(4)
-    model[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y
-    model[:3, 3] = (centre[0], bottom, centre[2])
-    return Prop(card(side, side), (scene.info.ground.reflectance,) * 3, model)
-
-
-#: The bundled head's eyes: (file in kmpipe.formats.scene.HEAD_DIR, linear-RGB Lambert albedo), drawn as props.
-EYES = (("eyes_sclera.obj", (0.62, 0.58, 0.54)), ("eyes_iris.obj", (0.11, 0.06, 0.03)),
-        ("eyes_pupil.obj", (0.01, 0.01, 0.01)))  # fmt: skip
-
-
-def _eyes(scene: Scene, model: np.ndarray) -> tuple[Prop, ...]:
-    """The bundled head's eyes (sclera, iris, pupil) turned with it by ``model``; none on any other mesh."""
-    if scene.info.scene.mesh != "head":
-        return ()
-    return tuple(Prop(load_mesh(HEAD_DIR / name), albedo, model) for name, albedo in EYES)
 
 
 def render_scene(

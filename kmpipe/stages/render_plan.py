@@ -34,6 +34,7 @@ from kmpipe.physics.optical_tables import (
     parse_mode,
     working_space,
 )
+from kmpipe.stages import plan_notes
 from renderer.scene import Scattering
 from renderer.stack import MAX_CHANNELS, SKIN_SPECULAR, Specular
 
@@ -278,6 +279,8 @@ class ScenePlan:
         The skin's subsurface scattering, or None (off, or no skin).
     notes
         What the plan decided beyond the tables and why, one line each (see :meth:`explain`).
+    ambient_occlusion
+        Whether the mesh's ambient occlusion is baked (:mod:`renderer.occlusion`) to darken the environment's light.
     """
 
     tables: RenderPlan
@@ -286,6 +289,7 @@ class ScenePlan:
     skin_lobe: Specular | None = None
     scattering: Scattering | None = None
     notes: tuple[str, ...] = field(default=())
+    ambient_occlusion: bool = False
 
     @property
     def mode(self) -> str:
@@ -304,6 +308,20 @@ def placed_bounds(scene: Scene) -> tuple[np.ndarray, float, float]:
     vertices = np.asarray(scene.mesh.vertices) @ scene.model[:3, :3].T + scene.model[:3, 3]
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     return centre, float(np.max(np.linalg.norm(vertices - centre, axis=1))), float(vertices[:, 1].min())
+
+
+#: Reach (radii of the product's bounding sphere) of a backdrop's sweep from the product's centre
+#: (kmpipe.stages.staging.SWEEP_SIZE: half its width, its floor in front, its wall's height).
+SWEEP_REACH = 10.0
+
+
+def scene_reach(scene: Scene) -> float:
+    """Radius (mm) about the product's centre that holds everything drawn: the product, its ground or backdrop."""
+    _, radius, _ = placed_bounds(scene)
+    backdrop = scene.info.backdrop
+    if backdrop is not None and backdrop.kind == "sweep":
+        return radius * SWEEP_REACH
+    return radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
 
 
 def can_shadow_itself(mesh: trimesh.Trimesh) -> bool:
@@ -356,47 +374,46 @@ def plan_scene(scene: Scene) -> ScenePlan:
             "combination of thicknesses in the scene; no tables reach the shader"
         )
     lights = scene.info.light
+    floor = "ground" if scene.info.ground is not None else None
+    if scene.info.backdrop is not None and scene.info.backdrop.kind == "sweep":
+        floor = "backdrop sweep"
     wanted = [light.shadows for light in lights]
     self_shadowing = can_shadow_itself(scene.mesh)
     size = None
     if not any(wanted):
         notes.append("shadow maps: no light casts shadows -> none made")
-    elif not (self_shadowing or scene.info.ground is not None):
+    elif not (self_shadowing or floor is not None):
         notes.append(
-            f"shadow maps: the {scene.info.scene.mesh} mesh is flat or convex and there is no ground, so nothing "
-            "can shadow anything -> none made"
+            f"shadow maps: the {scene.info.scene.mesh} mesh is flat or convex and there is no ground or sweep, so "
+            "nothing can shadow anything -> none made"
         )
         wanted = [False] * len(lights)
     else:
-        longer = max(settings.resolution)
+        longer = max(scene.info.resolution)
         size = settings.shadow_map or int(
             np.clip(2 ** math.ceil(math.log2(SHADOW_TEXELS_PER_PIXEL * longer)), *SHADOW_MAP_SIZES)
         )
         casters = "the product" + (" (it can shadow itself)" if self_shadowing else "")
         notes.append(
             f"shadow maps: {sum(wanted)} of {len(lights)} lights cast shadows of {casters}"
-            f"{' onto the ground' if scene.info.ground is not None else ''}; {size} x {size} texels, 3 x 3 PCF"
+            f"{f' onto the {floor}' if floor else ''}; {size} x {size} texels, 3 x 3 PCF"
         )
+        soft = [f"{i + 1} ({f'{light.angle_deg:g} deg' if light.kind == 'directional' else f'{light.size_mm:g} mm'})"
+                for i, light in enumerate(lights) if wanted[i] and (light.angle_deg or light.size_mm)]  # fmt: skip
+        if soft:
+            notes.append(f"soft shadows (area lights: percentage-closer soft shadows, 16 + 16 taps): lights "
+                         f"{', '.join(soft)}")  # fmt: skip
     _check_point_lights(scene, wanted)
-    if scene.info.ground is None:
-        notes.append("ground: none")
+    notes.append(plan_notes.backdrop_note(scene))
+    notes.append(plan_notes.detail_note(scene))
+    occluded = scene.info.environment is not None and self_shadowing
+    notes += plan_notes.environment_notes(scene, self_shadowing)
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
     notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
-    notes.append(_antialias_note(scene))
+    notes.append(plan_notes.antialias_note(scene))
     skin_lobe, scattering = _skin_lobe(scene), _skin_scattering(scene)
-    notes += _skin_notes(scene, skin_lobe, scattering)
-    return ScenePlan(tables, size, tuple(wanted), skin_lobe, scattering, tuple(notes))
-
-
-def _antialias_note(scene: Scene) -> str:
-    """What antialiasing the frames get and what it costs (``[output] antialias``)."""
-    k = scene.info.output.antialias
-    width, height = scene.info.scene.resolution
-    if k == 1:
-        return "antialiasing: none (antialias = 1: one sample per pixel, silhouettes are stair-stepped)"
-    given = "antialias" in scene.info.output.model_fields_set
-    return (f"antialiasing: {k} x {k} supersampling ({k * k} samples per pixel, rendered at {width * k} x {height * k} "
-            f"and box-filtered; flat regions keep their exact values){'' if given else ' (the default)'}")  # fmt: skip
+    notes += plan_notes.skin_notes(scene, skin_lobe, scattering)
+    return ScenePlan(tables, size, tuple(wanted), skin_lobe, scattering, tuple(notes), occluded)
 
 
 def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
@@ -404,7 +421,7 @@ def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
     turntable, where its inverse-square falloff has no finite value), and a shadowing one inside the scene's reach
     (its shadow map looks at the scene from outside it)."""
     centre, radius, _ = placed_bounds(scene)
-    reach = radius * (GROUND_EXTENT * math.sqrt(2.0) if scene.info.ground is not None else 1.0)
+    reach = scene_reach(scene)
     for index, (light, casts) in enumerate(zip(scene.info.light, shadows, strict=True)):
         if light.kind != "point":
             continue
@@ -421,7 +438,7 @@ def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:
             raise InputError(
                 f"a point light that casts shadows must stand outside the scene (more than {1.05 * reach:.0f} mm "
                 f"from its centre {tuple(round(float(c), 1) for c in centre)}, the product"
-                f"{' and its ground' if scene.info.ground is not None else ''}): move it, or set shadows = false",
+                f"{' and its ground or backdrop' if reach > radius else ''}): move it, or set shadows = false",
                 path=scene.path,
                 field=f"light[{index + 1}].position",
             )
@@ -441,23 +458,3 @@ def _skin_scattering(scene: Scene) -> Scattering | None:
     if scattering is None or scattering is False:
         return None
     return Scattering() if scattering is True else Scattering(**scattering.model_dump())
-
-
-def _skin_notes(scene: Scene, lobe: Specular | None, scattering: Scattering | None) -> list[str]:
-    skin = scene.info.skin
-    if skin is None:
-        return ["skin: none (the films lie on a substrate; no subsurface scattering)"]
-    notes = [
-        f"skin: {skin.reflectance}; its own lobe "
-        + ("none" if lobe is None else f"roughness {lobe.roughness:g}, F0 {lobe.f0:.3f}")
-    ]
-    if skin.albedo_texture is not None:
-        notes.append(f"albedo texture: {skin.albedo_texture} (spectra per texel from the skin's; modes planned on it)")
-    if scattering is None:
-        notes.append("subsurface scattering: off (the skin's light is not blurred)")
-    else:
-        notes.append(
-            f"subsurface scattering: 4 Gaussians x 2 separable 7-tap passes on skin pixels, alpha {scattering.alpha:g} "
-            f"(1 = the measured profile at true scale), beta {scattering.beta:g}, clamp {scattering.gradient_clamp:g}"
-        )
-    return notes

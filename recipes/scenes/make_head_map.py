@@ -17,6 +17,7 @@ Run: .venv/bin/python recipes/scenes/make_head_map.py
 """
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,46 +26,10 @@ from renderer.image_io import write_map
 from renderer.products import load_mesh
 
 HEAD = Path(__file__).resolve().parents[1] / "head"
+sys.path.insert(0, str(HEAD))
+from head_texels import lip_outline, smoothstep, texel_points  # noqa: E402  (the head's uv rasteriser, lip outline)
+
 SIZE = 1024
-
-
-def smoothstep(lo, hi, x):
-    """0 below lo, 1 above hi, 3t^2 - 2t^3 between."""
-    t = np.clip((x - lo) / (hi - lo), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
-def texel_points(mesh, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """The head's point (mm) at each texel's centre (size, size, 3) and where the uv islands cover (size, size)."""
-    uv = mesh.visual.uv * size - 0.5  # texel centres at integers; row 0 is v = 1 (the image's top)
-    uv[:, 1] = size - 1 - uv[:, 1]
-    points, covered = np.zeros((size, size, 3)), np.zeros((size, size), bool)
-    for tri in mesh.faces:
-        corners = uv[tri]
-        lo, hi = np.floor(corners.min(axis=0)).astype(int), np.ceil(corners.max(axis=0)).astype(int) + 1
-        xs, ys = np.meshgrid(np.arange(max(lo[0], 0), min(hi[0], size)), np.arange(max(lo[1], 0), min(hi[1], size)))
-        (ax, ay), (bx, by), (cx, cy) = corners
-        area = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
-        if area == 0:
-            continue
-        w1 = ((xs - ax) * (cy - ay) - (cx - ax) * (ys - ay)) / area
-        w2 = ((bx - ax) * (ys - ay) - (xs - ax) * (by - ay)) / area
-        w0 = 1.0 - w1 - w2
-        inside = (w0 >= -0.02) & (w1 >= -0.02) & (w2 >= -0.02)  # a little over the edges: no gaps at the seams
-        p = mesh.vertices[tri]
-        points[ys[inside], xs[inside]] = w0[inside, None] * p[0] + w1[inside, None] * p[1] + w2[inside, None] * p[2]
-        covered[ys[inside], xs[inside]] = True
-    return points, covered
-
-
-def mouth(mesh) -> tuple[float, float, float]:
-    """The mouth line's height and the upper and lower lips' forward peaks (y, mm) from the midline profile."""
-    midline = mesh.vertices[np.abs(mesh.vertices[:, 0]) < 0.5]
-    below_nose = midline[(midline[:, 1] < -38.0) & (midline[:, 1] > -80.0)]
-    upper = below_nose[np.argmax(below_nose[:, 2])]
-    lower_side = below_nose[below_nose[:, 1] < upper[1] - 6.0]
-    lower = lower_side[np.argmax(lower_side[:, 2])]
-    return (upper[1] + lower[1]) / 2.0, upper[1], lower[1]
 
 
 def makeup(points: np.ndarray, mesh, marks: dict) -> np.ndarray:
@@ -82,15 +47,7 @@ def makeup(points: np.ndarray, mesh, marks: dict) -> np.ndarray:
         blush += (
             np.exp(-0.5 * ((along / 20.0) ** 2 + (across / 10.0) ** 2)) * (side * x > 0) * smoothstep(30.0, 60.0, z)
         )
-    line, upper, lower = mouth(mesh)
-    half_width = 25.0
-    across = np.clip(np.abs(x) / half_width, 0.0, 1.0)
-    bow = 1.5 * np.exp(-((x / 5.0) ** 2))  # the Cupid's bow: a dip at the middle of the upper lip
-    top = (upper - line + 4.0) * np.sqrt(1.0 - across**2) ** 0.7 - bow
-    bottom = (line - lower + 5.0) * np.sqrt(1.0 - across**2) ** 0.6
-    height = np.where(y > line, top, bottom)
-    edge = np.abs(y - line) - height  # mm outside the outline (negative inside)
-    lips = (1.0 - smoothstep(-0.3, 0.3, edge)) * (np.abs(x) < half_width) * (z > 75.0)
+    lips = 1.0 - smoothstep(-0.3, 0.3, lip_outline(points, mesh))  # the outline shared with the skin maps
     lid_y = marks["joint-l-upperlid"][1]
     shadow = np.zeros_like(x)
     for side in (-1.0, 1.0):
@@ -102,7 +59,7 @@ def makeup(points: np.ndarray, mesh, marks: dict) -> np.ndarray:
 
 if __name__ == "__main__":
     head = load_mesh(HEAD / "head.obj")
-    points, covered = texel_points(head, SIZE)
+    points, covered, _ = texel_points(head, SIZE)
     values = makeup(points, head, json.loads((HEAD / "landmarks.json").read_text())) * covered[..., None]
     out = Path(__file__).resolve().parent
     write_map(out / "head_makeup.png", values[..., :3])

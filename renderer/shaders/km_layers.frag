@@ -20,13 +20,27 @@
 // coming back out is attenuated by the films above it: A_i = product over layers j above i of T_j^2 (per channel,
 // converted to RGB like the diffuse part).
 //
-// The substrate may have a lobe of its own (skin: F0 ~ 0.028), attenuated by every film (A = product of all T^2).
+// The substrate may have a lobe of its own (skin: F0 ~ 0.028), attenuated by every film (A = product of all T^2),
+// its roughness from a map over uv where there is one (u_use_roughness_map). A film's own lobe is weighted by its
+// cover, clamp(t / u_lobe_cover_mm, 0, 1) (renderer.stack.LOBE_COVER_MM): where a thickness map falls to zero the film,
+// and its gloss, are gone (a precomposed stack comes with the cover in its attenuation).
+//
+// Fine detail (u_use_normal_map): every term uses the shading normal of shading_normal(), the normal map's detail
+// over the interpolated normal, its tilt smoothed by the films' total thickness t as exp(-t / u_fill_mm) (a film
+// fills fine lines); shadow lookups keep the interpolated normal.
 //
 // Radiance. With E_l the light's value for a white Lambert surface facing it (the unit of the whole renderer) and
 // v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, looked up 0.5 to 2 texels off the
 // surface along its normal; 0 = shadowed, 1 = lit):
 //   colour = sum over lights of E_l v_l max(N.L, 0) (R_rgb + pi sum_i A_i f_spec,i)
 // (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
+//
+// Environment (u_env_on = 1; renderer.environment): with the normal n and mirror direction r = reflect(-v, n) turned
+// into the environment's frame by u_env_rotation, and AO the vertex's baked ambient occlusion (renderer.occlusion),
+//   colour += s AO (E(n) / pi) R_rgb + s AO sum_i A_i (F0_i a(mu, m_i) + b(mu, m_i)) L_m_i(r)
+// with s the intensity, E / pi the prefiltered irradiance map, L_m the specular level for roughness m (linear between
+// levels) and (a, b) the lobe albedo table at mu = max(n.v, 0) (the split sum). The diffuse term enters the skin like
+// a light's: E / pi AO (R_rgb - R_black) goes to f_skin in split mode.
 //
 // Split mode (u_split = 1, the skin pass of renderer.skin): the light that entered the substrate and came back out,
 // E v cos (R_rgb - R_black) with R_black the stack's reflectance over a black substrate, goes to f_skin (to be blurred
@@ -47,10 +61,12 @@
 #define MAX_CHANNELS 32
 #define MAX_LIGHTS 4
 #define PI 3.14159265358979
+#define MAX_LEVELS 8
 
 in vec3 v_position;
 in vec3 v_normal;
 in vec2 v_uv;
+in float v_occlusion;
 in float v_view_depth;
 
 uniform int u_layer_count;                   // number of layers, 0 .. MAX_LAYERS
@@ -93,6 +109,30 @@ uniform sampler2DShadow u_shadow0;
 uniform sampler2DShadow u_shadow1;
 uniform sampler2DShadow u_shadow2;
 uniform sampler2DShadow u_shadow3;
+uniform float u_light_softness[MAX_LIGHTS];  // 0: a hard light; directional: 2 tan(angle / 2); point: diameter, mm
+uniform vec2 u_shadow_range[MAX_LIGHTS];     // near and far distance (mm) of the light's shadow frustum
+uniform sampler2D u_shadow_depth0;           // the shadow maps' raw depths (no comparison), for the blocker search
+uniform sampler2D u_shadow_depth1;
+uniform sampler2D u_shadow_depth2;
+uniform sampler2D u_shadow_depth3;
+
+uniform int u_env_on;                        // 1: light from the environment
+uniform sampler2D u_env_irradiance;          // E / pi over directions (equirectangular, u wraps)
+uniform sampler2DArray u_env_specular;       // prefiltered radiance per roughness level (equirectangular)
+uniform sampler2D u_env_lobe;                // lobe albedo (a, b) over mu (s) and sqrt(m) (t), texel centres at ends
+uniform mat3 u_env_rotation;                 // world -> environment frame
+uniform float u_env_intensity;               // s
+uniform int u_env_level_count;               // specular levels (<= MAX_LEVELS)
+uniform float u_env_level_m[MAX_LEVELS];     // their Beckmann m, increasing (level 0: m = 0, the image itself)
+uniform vec2 u_env_lobe_range;               // sqrt(m) at the lobe table's first and last rows
+
+uniform int u_use_normal_map;                // 1: fine detail from a tangent-space normal map over uv
+uniform sampler2D u_normal_map;              // unit vectors: x along +u, y along +v, z out of the surface
+uniform sampler2D u_film_total;              // total film thickness over uv (mm, red), which smooths the detail
+uniform float u_fill_mm;                     // film thickness that smooths the detail by 1/e
+uniform int u_use_roughness_map;             // 1: the substrate lobe's roughness varies over uv
+uniform sampler2D u_roughness_map;           // its Beckmann m (red)
+uniform float u_lobe_cover_mm;               // a film's lobe is weighted by clamp(thickness / this, 0, 1)
 
 uniform int u_orthographic;                  // 1: the view direction is u_view_vector everywhere
 uniform vec3 u_view_vector;                  // orthographic: unit vector towards the camera; else: eye (mm)
@@ -198,6 +238,45 @@ void stack_optics(out vec3 reflectance, out vec3 over_black, out vec3 attenuatio
     }
 }
 
+float shadow_compare(int light, vec3 tap) {
+    if (light == 0) return texture(u_shadow0, tap);
+    if (light == 1) return texture(u_shadow1, tap);
+    if (light == 2) return texture(u_shadow2, tap);
+    return texture(u_shadow3, tap);
+}
+
+float shadow_depth(int light, vec2 at) {
+    if (light == 0) return textureLod(u_shadow_depth0, at, 0.0).r;
+    if (light == 1) return textureLod(u_shadow_depth1, at, 0.0).r;
+    if (light == 2) return textureLod(u_shadow_depth2, at, 0.0).r;
+    return textureLod(u_shadow_depth3, at, 0.0).r;
+}
+
+// Distance (mm) from the light along its axis of a shadow-map depth: linear for a directional light's orthographic
+// frustum, s = f n / (f - depth (f - n)) for a point light's perspective one.
+float light_distance(int light, float depth) {
+    vec2 r = u_shadow_range[light];
+    if (u_light_is_point[light] == 1) return r.x * r.y / (r.y - depth * (r.y - r.x));
+    return r.x + depth * (r.y - r.x);
+}
+
+// Penumbra width (mm) of a light at a receiver `receiver` mm from it behind an occluder `blocker` mm from it.
+float penumbra(int light, float receiver, float blocker) {
+    float gap = max(receiver - blocker, 0.0);
+    return u_light_softness[light] * (u_light_is_point[light] == 1 ? gap / max(blocker, 1e-6) : gap);
+}
+
+const vec2 DISC[16] = vec2[16](
+    vec2(-0.9465, -0.1484), vec2(-0.7431, 0.5353), vec2(-0.5863, -0.5879), vec2(-0.3935, 0.1025),
+    vec2(-0.2428, 0.8663), vec2(-0.1672, -0.9260), vec2(-0.0793, -0.3570), vec2(0.0626, 0.4394),
+    vec2(0.1790, -0.0364), vec2(0.2735, 0.9045), vec2(0.3360, -0.6447), vec2(0.4768, 0.2973),
+    vec2(0.6063, -0.2457), vec2(0.7140, 0.6440), vec2(0.8413, -0.5226), vec2(0.9620, 0.1130));
+
+// Visibility of a light at `position`: 3 x 3 PCF taps (each a 2 x 2 filtered lookup) for a hard light; for an area
+// light, percentage-closer soft shadows: 16 taps of a blocker search over the region the light can be seen through
+// (a disc as wide as its penumbra for an occluder at the frustum's near end, radius 1 to 64 texels), their mean
+// distance d_o, then 16 PCF taps over a disc as wide as the penumbra the light casts from there (radius 1 to 64
+// texels), the disc turned per pixel by interleaved gradient noise (Jimenez 2014), which supersampling averages out.
 float shadow_visibility(int light, vec3 position) {
     if (u_light_shadow[light] == 0) return 1.0;
     vec4 coordinates = u_shadow_matrix[light] * vec4(position, 1.0);
@@ -207,17 +286,62 @@ float shadow_visibility(int light, vec3 position) {
     else if (light == 1) texel = 1.0 / vec2(textureSize(u_shadow1, 0));
     else if (light == 2) texel = 1.0 / vec2(textureSize(u_shadow2, 0));
     else texel = 1.0 / vec2(textureSize(u_shadow3, 0));
-    float lit = 0.0;
-    for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
-            vec3 tap = vec3(p.xy + vec2(dx, dy) * texel, p.z);
-            if (light == 0) lit += texture(u_shadow0, tap);
-            else if (light == 1) lit += texture(u_shadow1, tap);
-            else if (light == 2) lit += texture(u_shadow2, tap);
-            else lit += texture(u_shadow3, tap);
+    if (u_light_softness[light] <= 0.0) {
+        float lit = 0.0;
+        for (int dy = -1; dy <= 1; ++dy) {
+            for (int dx = -1; dx <= 1; ++dx) lit += shadow_compare(light, vec3(p.xy + vec2(dx, dy) * texel, p.z));
+        }
+        return lit / 9.0;
+    }
+    float angle = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
+    mat2 turn = mat2(cos(angle), sin(angle), -sin(angle), cos(angle));
+    float receiver = light_distance(light, p.z);
+    // disc radii (texels): half the penumbra's width
+    float search = clamp(0.5 * penumbra(light, receiver, u_shadow_range[light].x) / u_shadow_texel[light], 1.0, 64.0);
+    float blockers = 0.0;
+    int found = 0;
+    for (int i = 0; i < 16; ++i) {
+        float depth = shadow_depth(light, p.xy + turn * DISC[i] * search * texel);
+        if (depth < p.z) {
+            blockers += light_distance(light, depth);
+            ++found;
         }
     }
-    return lit / 9.0;
+    if (found == 0) return 1.0;
+    float width = clamp(0.5 * penumbra(light, receiver, blockers / float(found)) / u_shadow_texel[light], 1.0, 64.0);
+    float lit = 0.0;
+    for (int i = 0; i < 16; ++i) lit += shadow_compare(light, vec3(p.xy + turn * DISC[i] * width * texel, p.z));
+    return lit / 16.0;
+}
+
+// Beckmann roughness of lobe k: the film's, or the substrate's (from its map where there is one).
+float lobe_m(int k) {
+    if (k == MAX_LAYERS && u_use_roughness_map == 1) return max(texture(u_roughness_map, v_uv).r, 0.02);
+    return u_roughness[k];
+}
+
+// The shading normal: the interpolated normal n tilted by the normal map's detail d in the surface's tangent frame
+// (T along +u, B along +v, from the screen-space derivatives of position and uv: Schueler's cotangent frame), the
+// detail's tilt scaled by k = exp(-t / u_fill_mm), t the films' total thickness here (a film fills fine lines):
+//   n' = normalize(T d.x k + B d.y k + n d.z).
+vec3 shading_normal(vec3 n) {
+    if (u_use_normal_map == 0) return n;
+    vec3 dp1 = dFdx(v_position);
+    vec3 dp2 = dFdy(v_position);
+    vec2 duv1 = dFdx(v_uv);
+    vec2 duv2 = dFdy(v_uv);
+    vec3 dp2perp = cross(dp2, n);
+    vec3 dp1perp = cross(n, dp1);
+    vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
+    vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
+    float longest = max(dot(t, t), dot(b, b));
+    if (!(longest > 1e-30)) return n;  // uv does not change here: no frame
+    float scale = inversesqrt(longest);
+    vec3 d = texture(u_normal_map, v_uv).xyz;
+    float k = exp(-max(texture(u_film_total, v_uv).r, 0.0) / u_fill_mm);
+    vec3 tilted = (t * scale) * (d.x * k) + (b * scale) * (d.y * k) + n * d.z;
+    float length2 = dot(tilted, tilted);
+    return length2 > 1e-12 ? tilted * inversesqrt(length2) : n;
 }
 
 // Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of lobe `k` (a film's bottom-up index, or MAX_LAYERS: the substrate).
@@ -228,7 +352,8 @@ float kelemen(int k, vec3 n, vec3 l, vec3 v) {
     vec3 h = h_sum * inversesqrt(h_length2);
     float cos_a = dot(n, h);
     if (cos_a <= 0.0) return 0.0;
-    float m2 = u_roughness[k] * u_roughness[k];
+    float m = lobe_m(k);
+    float m2 = m * m;
     float cos2 = cos_a * cos_a;
     float tan2 = (1.0 - cos2) / cos2;
     float distribution = exp(-tan2 / m2) / (PI * m2 * cos2 * cos2);
@@ -237,12 +362,44 @@ float kelemen(int k, vec3 n, vec3 l, vec3 v) {
     return distribution * fresnel / h_length2;
 }
 
+// Texture coordinates of a world direction in the equirectangular environment (u wraps, v = 1 at the zenith).
+vec2 equirect(vec3 d) {
+    vec3 e = u_env_rotation * d;
+    return vec2(0.5 + atan(e.x, -e.z) / (2.0 * PI), 1.0 - acos(clamp(e.y, -1.0, 1.0)) / PI);
+}
+
+vec3 environment_specular(vec3 r, float m) {
+    vec2 at = equirect(r);
+    int last = u_env_level_count - 1;
+    if (m >= u_env_level_m[last]) return textureLod(u_env_specular, vec3(at, float(last)), 0.0).rgb;
+    int level = 0;
+    while (level < last - 1 && u_env_level_m[level + 1] <= m) ++level;
+    float w = clamp((m - u_env_level_m[level]) / (u_env_level_m[level + 1] - u_env_level_m[level]), 0.0, 1.0);
+    return mix(textureLod(u_env_specular, vec3(at, float(level)), 0.0).rgb,
+               textureLod(u_env_specular, vec3(at, float(level + 1)), 0.0).rgb, w);
+}
+
+// The lobe's directional albedo F0 a + b at mu = cos(view angle) for lobe k.
+float lobe_albedo(int k, float mu) {
+    vec2 size = vec2(textureSize(u_env_lobe, 0));
+    float s = clamp((sqrt(lobe_m(k)) - u_env_lobe_range.x) / (u_env_lobe_range.y - u_env_lobe_range.x), 0.0, 1.0);
+    vec2 at = (vec2(mu, s) * (size - 1.0) + 0.5) / size;
+    vec2 ab = textureLod(u_env_lobe, at, 0.0).rg;
+    return u_f0[k] * ab.x + ab.y;
+}
+
 void main() {
     vec3 reflectance;
     vec3 over_black;
     vec3 attenuation[MAX_LAYERS + 1];
     stack_optics(reflectance, over_black, attenuation);
-    vec3 n = normalize(v_normal);
+    if (u_precomposed == 0) {  // (precomposed stacks come with their films' cover applied)
+        for (int layer = 0; layer < u_layer_count; ++layer) {
+            attenuation[layer] *= clamp(layer_thickness(layer) / u_lobe_cover_mm, 0.0, 1.0);
+        }
+    }
+    vec3 geometric = normalize(v_normal);
+    vec3 n = shading_normal(geometric);
     vec3 v = u_orthographic == 1 ? u_view_vector : normalize(u_view_vector - v_position);
     bool split = u_split == 1 && u_skin == 1;
     vec3 surface = split ? over_black : reflectance;
@@ -269,10 +426,26 @@ void main() {
         }
         // Looked up a little off the surface, along the normal (more at grazing light), so that a curved surface
         // does not shadow itself between the map's texels ("acne").
-        vec3 lookup = v_position + n * u_shadow_texel[light] * (0.5 + 1.5 * (1.0 - cos_theta));
+        float cos_geometric = max(dot(geometric, l), 0.0);
+        vec3 lookup = v_position + geometric * u_shadow_texel[light] * (0.5 + 1.5 * (1.0 - cos_geometric));
         vec3 incident = e * shadow_visibility(light, lookup) * cos_theta;
         colour += incident * (surface + PI * specular);
         skin += incident * (reflectance - over_black);
+    }
+    if (u_env_on == 1) {
+        float open_sky = u_env_intensity * v_occlusion;
+        vec3 irradiance = textureLod(u_env_irradiance, equirect(n), 0.0).rgb * open_sky;
+        colour += irradiance * surface;
+        skin += irradiance * (reflectance - over_black);
+        if (u_any_specular == 1) {
+            vec3 r = reflect(-v, n);
+            float mu = clamp(dot(n, v), 0.0, 1.0);
+            for (int k = 0; k <= MAX_LAYERS; ++k) {
+                if (u_specular_on[k] == 1 && (k < u_layer_count || k == MAX_LAYERS)) {
+                    colour += attenuation[k] * lobe_albedo(k, mu) * environment_specular(r, lobe_m(k)) * open_sky;
+                }
+            }
+        }
     }
     f_colour = vec4(colour, 1.0);
     f_skin = split ? vec4(skin, 1.0) : vec4(0.0);  // alpha: the skin mask

@@ -1,0 +1,62 @@
+"""What a frame shows where no surface is: a flat colour, a vertical gradient, or the environment behind the camera's
+rays.
+
+The passes clear their colour target to the flat colour (or black) with alpha 0 and every surface writes alpha 1;
+:func:`fill_background` then replaces the pixels still at alpha 0. A gradient's row y of h (0 at the top) takes
+``top + (bottom - top) s(t)``, t = (y + 1/2) / h, s(t) = 3 t^2 - 2 t^3; a visible environment the radiance along
+each pixel centre's camera ray (:meth:`renderer.environment.Environment.lookup`). Under supersampling the fill runs on
+the fine image, so a silhouette's pixels blend the surface with what is behind it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from renderer.scene import GradientBackground, Scene
+
+
+def clear_colour(scene: Scene) -> tuple[float, float, float]:
+    """The colour a pass clears to: the flat background, else black (the fill paints the rest)."""
+    shown = scene.environment is not None and scene.environment.visible
+    if shown or isinstance(scene.background, GradientBackground):
+        return (0.0, 0.0, 0.0)
+    return tuple(float(c) for c in scene.background)
+
+
+def camera_rays(scene: Scene) -> np.ndarray:
+    """World-space unit directions (height, width, 3) of the camera rays through the pixel centres, top row first."""
+    width, height = scene.resolution
+    camera = scene.camera
+    inverse = np.linalg.inv(camera.projection_matrix(width / height) @ camera.view_matrix())
+    x = (np.arange(width) + 0.5) / width * 2.0 - 1.0
+    y = 1.0 - (np.arange(height) + 0.5) / height * 2.0
+    xx, yy = np.meshgrid(x, y)
+    ends = []
+    for z in (-1.0, 1.0):
+        clip = np.stack([xx, yy, np.full_like(xx, z), np.ones_like(xx)], axis=-1) @ inverse.T
+        ends.append(clip[..., :3] / clip[..., 3:])
+    rays = ends[1] - ends[0]
+    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+
+def fill_background(rgba: np.ndarray, scene: Scene) -> np.ndarray:
+    """The frame's linear RGB (h, w, 3) from its RGBA read-back, the pixels of alpha 0 filled as the module says."""
+    rgb = rgba[..., :3]
+    environment = scene.environment
+    gradient = isinstance(scene.background, GradientBackground)
+    if not (gradient or (environment is not None and environment.visible)):
+        return rgb
+    empty = rgba[..., 3] < 0.5
+    if not empty.any():
+        return rgb
+    if environment is not None and environment.visible:
+        behind = environment.lookup(camera_rays(scene))
+    else:
+        height = rgba.shape[0]
+        t = (np.arange(height) + 0.5) / height
+        s = (t * t * (3.0 - 2.0 * t))[:, None, None]
+        top, bottom = (np.asarray(c, dtype=float) for c in (scene.background.top, scene.background.bottom))
+        behind = np.broadcast_to(top + (bottom - top) * s, rgb.shape)
+    out = rgb.copy()
+    out[empty] = behind[empty]
+    return out

@@ -1,0 +1,611 @@
+"""Studio light in the layer pass: environment light, ambient occlusion, soft shadows, backdrops, fine detail.
+
+References, none produced by the code under test:
+
+* the white furnace: inside a uniform environment of radiance L a Lambert surface of albedo a reflects exactly a L
+  (its irradiance is pi L wherever it faces), a Kubelka-Munk stack its composite reflectance times L;
+* the Kelemen / Szirmay-Kalos lobe (thesis eq. 3.15, as ``shaders/km_layers.frag`` writes it: normalised Beckmann P,
+  Schlick F, 1 / (2 (1 + l.v))) integrated here against cos(theta_l) over the light's hemisphere on a fine grid (the
+  code integrates over the half vector instead);
+* the irradiance of a cosine sky L(w) = c max(w.y, 0): for a normal at angle g from +y, integral of two clamped
+  cosines, ``E / pi = (2 c / (3 pi)) ((pi - g) cos g + sin g)`` (checked here against scipy's dblquad too);
+* the equirectangular directions and the rotation as ``renderer/environment.py``'s docstring states them, written
+  out here;
+* ambient occlusion of a floor point at distance d from an infinitely wide wall of height H: the wall is the wedge of
+  directions between the horizon and elevation alpha = atan(H / d), seen in a cross-section as the 2-D view factor
+  of a strip, (sin 90 - sin(90 - alpha)) / 2; it hides the projected solid angle (pi / 2) (1 - cos alpha) of pi, so
+  AO = (1 + cos alpha) / 2;
+* the penumbra of a disc-shaped light of angular diameter theta behind an edge a gap g above the floor: the lit
+  fraction of the light's disc of diameter D = 2 g tan(theta / 2), a circular segment;
+* a tangent-space normal (sin a, 0, cos a) on a card facing +z is the world normal (sin a, 0, cos a), so Lambert
+  scales by its cosine to the light; a film of thickness t scales its tilt by k = exp(-t / fill).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scipy import integrate, optimize
+
+from renderer import meshes
+from renderer.environment import (
+    LOBE_TABLE_SIZE,
+    Environment,
+    lobe_albedo,
+    lobe_m_axis,
+    prefiltered,
+    studio_environment,
+)
+from renderer.layers import render_layers
+from renderer.occlusion import vertex_occlusion
+from renderer.products import load_mesh
+from renderer.scene import (
+    DirectionalLight,
+    GradientBackground,
+    NormalMap,
+    OrthographicCamera,
+    PerspectiveCamera,
+    Prop,
+    Scattering,
+    Scene,
+)
+from renderer.skin import render_skin
+from renderer.stack import LOBE_COVER_MM, ChannelStack, LayerTable, Specular
+
+ROOT = Path(__file__).resolve().parents[1]
+SIZE = 48
+CAMERA = OrthographicCamera(half_height=12.0, eye=(0.0, 0.0, 100.0), near=1.0, far=300.0)
+SPHERE = meshes.sphere(10.0)
+CARD = meshes.card(30.0, 30.0)  # fills the frame: u along +x, v along +y, facing +z
+DARK = DirectionalLight((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), cast_shadows=False)  # a light that adds nothing
+HEAD_ON = DirectionalLight((0.0, 0.0, -1.0), (1.0, 1.0, 1.0), cast_shadows=False)
+BACKGROUND = (-1.0, -1.0, -1.0)  # marks the pixels no surface covers
+
+
+def uniform(radiance: float, **options) -> Environment:
+    return Environment(np.full((16, 32, 3), radiance, np.float32), **options)
+
+
+def scene(**options) -> Scene:
+    """A white Lambert sphere in the frame's middle, no light; ``options`` replace any field."""
+    base = Scene(
+        mesh=SPHERE,
+        stack=ChannelStack((), (), (1.0, 1.0, 1.0)),
+        camera=CAMERA,
+        lights=[DARK],
+        resolution=(SIZE, SIZE),
+        background=BACKGROUND,
+    )
+    return dataclasses.replace(base, **options)
+
+
+def covered(image: np.ndarray) -> np.ndarray:
+    return image[..., 0] >= 0.0
+
+
+def equirect_directions(cols: int, rows: int) -> np.ndarray:
+    """Pixel-centre directions of an equirectangular image as renderer/environment.py's docstring defines them:
+    theta from +y, phi from -z towards +x, d = (sin theta sin phi, cos theta, -sin theta cos phi)."""
+    theta = (np.arange(rows) + 0.5) / rows * np.pi
+    phi = (np.arange(cols) + 0.5) / cols * 2.0 * np.pi - np.pi
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    return np.stack([np.sin(t) * np.sin(p), np.cos(t), -np.sin(t) * np.cos(p)], axis=-1)
+
+
+def environment_of(function, cols: int = 128) -> np.ndarray:
+    """An equirectangular image (cols / 2, cols, 3) whose pixels are ``function(direction)`` (grey)."""
+    values = function(equirect_directions(cols, cols // 2))
+    return np.repeat(values[..., None], 3, axis=2).astype(np.float32)
+
+
+def kelemen_albedo(mu: float, m: float, f0: float, n_theta: int = 360, n_phi: int = 720) -> float:
+    """rho(mu, m, F0) = integral over the light's hemisphere of f_spec(l, v) cos(theta_l) dw_l, midpoint rule in
+    (theta_l, phi_l); f_spec = P(h) F(h.l) / (2 (1 + l.v)), P = exp(-tan^2 a / m^2) / (pi m^2 cos^4 a), Schlick F."""
+    theta = (np.arange(n_theta) + 0.5) / n_theta * (np.pi / 2.0)
+    phi = (np.arange(n_phi) + 0.5) / n_phi * (2.0 * np.pi)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    light = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+    view = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
+    half = light + view
+    half /= np.linalg.norm(half, axis=-1, keepdims=True)
+    cos_a = half[..., 2]
+    beckmann = np.exp(-(1.0 - cos_a**2) / cos_a**2 / m**2) / (np.pi * m**2 * cos_a**4)
+    fresnel = f0 + (1.0 - f0) * (1.0 - np.sum(half * light, axis=-1)) ** 5
+    f_spec = beckmann * fresnel / (2.0 * (1.0 + light @ view))
+    d_omega = np.sin(t) * (np.pi / 2.0 / n_theta) * (2.0 * np.pi / n_phi)
+    return float(np.sum(f_spec * np.cos(t) * d_omega))
+
+
+# 1. The white furnace.
+
+
+@pytest.mark.parametrize(("albedo", "radiance", "intensity"), [(1.0, 0.7, 1.0), (0.35, 0.7, 1.0), (0.35, 0.7, 2.5)])
+def test_a_lambert_sphere_in_a_uniform_environment_renders_albedo_times_radiance(albedo, radiance, intensity):
+    image = render_layers(
+        scene(stack=ChannelStack((), (), (albedo,) * 3), environment=uniform(radiance, intensity=intensity))
+    )
+    inside = covered(image)
+    assert inside.sum() > 0.4 * SIZE * SIZE
+    np.testing.assert_allclose(image[inside], intensity * albedo * radiance, rtol=2e-6)  # float32 rounding
+
+
+def test_the_skin_pass_keeps_the_furnace_through_a_film_and_its_scattering():
+    """Skin under a film (R0, T) in a uniform environment: the KM composite R0 + T^2 a / (1 - R0 a) times L, with or
+    without the subsurface blur (a uniform skin light blurred stays uniform)."""
+    r0, t, skin = np.array([0.2, 0.3, 0.1]), np.array([0.6, 0.5, 0.7]), np.array([0.9, 0.7, 0.5])
+    stack = ChannelStack((LayerTable(0.01, r0, t),), (0.01,), skin)
+    expected = 0.7 * (r0 + t**2 * skin / (1.0 - r0 * skin))
+    for scattering in (None, Scattering()):
+        image = render_skin(scene(stack=stack, environment=uniform(0.7), scattering=scattering))
+        np.testing.assert_allclose(
+            image[covered(image)], np.broadcast_to(expected, image[covered(image)].shape), rtol=2e-5
+        )
+
+
+# 2. The lobe albedo table.
+
+
+@pytest.mark.parametrize(("m_row", "mu_column"), [(8, 31), (8, 12), (18, 22), (18, 4), (31, 31), (31, 12)])
+def test_the_lobe_albedo_table_matches_a_quadrature_over_the_light_hemisphere(m_row, mu_column):
+    m = lobe_m_axis()[m_row]
+    mu = np.linspace(0.0, 1.0, LOBE_TABLE_SIZE[0])[mu_column]  # the table's mu nodes (its first is 1e-3)
+    assert m >= 0.2  # the grid resolves the lobe
+    a, b = lobe_albedo()[m_row, mu_column]
+    for f0 in (0.028, 0.04, 0.25):
+        assert f0 * a + b == pytest.approx(kelemen_albedo(mu, m, f0), rel=0.01)
+
+
+# 3. Lobes in a uniform environment.
+
+
+@pytest.mark.parametrize(("roughness", "ior"), [(0.3, 1.5), (0.2, 1.4), (0.6, 2.0)])
+def test_a_substrate_lobe_in_a_uniform_environment_adds_its_albedo_times_radiance(roughness, ior):
+    """At the sphere's centre (mu = 1) the lobe adds rho(1, m, F0) L to the Lambert a L; under a film of
+    transmittance T (no lobe of its own) the substrate's lobe is seen through it: T^2 rho L."""
+    radiance, albedo, lobe = 0.7, 0.4, Specular(roughness, ior)
+    centre = (SIZE // 2, SIZE // 2)
+    rho = kelemen_albedo(1.0, roughness, lobe.f0)
+    bare = scene(stack=ChannelStack((), (), (albedo,) * 3), environment=uniform(radiance), resolution=(SIZE + 1,) * 2)
+    without = render_layers(bare)[centre]
+    with_lobe = render_layers(dataclasses.replace(bare, substrate_lobe=lobe))[centre]
+    np.testing.assert_allclose(without, albedo * radiance, rtol=1e-5)
+    np.testing.assert_allclose(with_lobe - without, rho * radiance, rtol=0.015)
+    t = np.array([0.8, 0.5, 0.3])
+    filmed = dataclasses.replace(
+        bare, stack=ChannelStack((LayerTable(0.01, np.full(3, 0.1), t),), (0.01,), (albedo,) * 3)
+    )
+    seen = render_layers(dataclasses.replace(filmed, substrate_lobe=lobe))[centre] - render_layers(filmed)[centre]
+    np.testing.assert_allclose(seen, t**2 * rho * radiance, rtol=0.015)
+
+
+# 4. The irradiance prefilter.
+
+
+def cosine_sky_irradiance(c: float, gamma: np.ndarray) -> np.ndarray:
+    """E / pi of a normal at angle gamma from +y under L = c max(w.y, 0): (1 / pi) * integral of
+    c max(w.y, 0) max(n.w, 0) dw = (2 c / (3 pi)) ((pi - gamma) cos gamma + sin gamma)."""
+    return 2.0 * c / (3.0 * np.pi) * ((np.pi - gamma) * np.cos(gamma) + np.sin(gamma))
+
+
+def test_the_closed_form_of_the_cosine_sky_holds():
+    for gamma in (0.0, 0.7, np.pi / 2, 2.2):
+        n = np.array([np.sin(gamma), np.cos(gamma), 0.0])
+
+        def integrand(theta, phi, n=n):
+            w = np.array([np.sin(theta) * np.cos(phi), np.cos(theta), np.sin(theta) * np.sin(phi)])
+            return np.cos(theta) * max(float(n @ w), 0.0) * np.sin(theta)
+
+        value, _ = integrate.dblquad(integrand, 0.0, 2.0 * np.pi, 0.0, np.pi / 2.0, epsabs=1e-10)
+        assert value / np.pi == pytest.approx(cosine_sky_irradiance(1.0, gamma), rel=1e-6, abs=1e-9)
+
+
+def test_the_prefiltered_irradiance_of_a_cosine_sky_matches_the_closed_form():
+    c = 0.8
+    maps = prefiltered(Environment(environment_of(lambda d: c * np.maximum(d[..., 1], 0.0))))
+    rows, cols = maps.irradiance.shape[:2]
+    gamma = np.arccos(np.clip(equirect_directions(cols, rows)[..., 1], -1.0, 1.0))  # every texel's normal
+    expected = cosine_sky_irradiance(c, gamma)
+    assert maps.irradiance[0, 0, 0] == pytest.approx(2.0 * c / 3.0, rel=0.01)  # next to the zenith
+    horizon = maps.irradiance[rows // 2 - 1 : rows // 2 + 1, 0, 0].mean()  # bilinear between the rows around it
+    assert horizon == pytest.approx(2.0 * c / (3.0 * np.pi), rel=0.02)
+    np.testing.assert_allclose(maps.irradiance[..., 0], expected, rtol=0.02, atol=0.002 * c)
+    np.testing.assert_array_equal(maps.irradiance[..., 0], maps.irradiance[..., 2])
+
+
+# 5. Rotation.
+
+
+def test_rotation_turns_the_environment_counter_clockwise_seen_from_above():
+    """A bright patch around -z (the image's centre, phi = 0). Seen from above (x to the right, -z up) a turn of
+    +90 degrees counter-clockwise takes -z, pointing up, to pointing left: -x. Lookups and renders agree."""
+    patch = environment_of(lambda d: np.where(d[..., 2] < -np.cos(np.radians(20.0)), 5.0, 0.02))
+    probes = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    for rotation, bright in ((0.0, 0), (90.0, 1), (-90.0, 2), (180.0, 3), (450.0, 1)):
+        seen = Environment(patch, rotation_deg=rotation, intensity=2.0).lookup(probes)[:, 0]
+        np.testing.assert_allclose(seen, np.where(np.arange(4) == bright, 10.0, 0.04), rtol=1e-5)
+    # In the layer pass the sphere's side facing the patch is lit: the left half at +90, the right at -90.
+    for rotation, left_brighter in ((90.0, True), (-90.0, False)):
+        image = render_layers(scene(environment=Environment(patch, rotation_deg=rotation)))[..., 0]
+        left, right = image[:, : SIZE // 2], image[:, SIZE // 2 :]
+        assert (left[left >= 0].mean() > 5.0 * right[right >= 0].mean()) == left_brighter
+
+
+# 6. Ambient occlusion.
+
+
+def floor_grid(xs: np.ndarray, zs: np.ndarray) -> trimesh.Trimesh:
+    """A floor in y = 0 over the grid xs x zs (mm), normals +y, with uv."""
+    xx, zz = np.meshgrid(xs, zs, indexing="xy")
+    vertices = np.stack([xx, np.zeros_like(xx), zz], axis=-1).reshape(-1, 3)
+    n = len(xs)
+    i, j = np.meshgrid(np.arange(len(zs) - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    faces = np.concatenate([np.stack([a, a + n, a + 1], -1), np.stack([a + 1, a + n, a + n + 1], -1)])
+    uv = np.stack([(xx - xs[0]) / np.ptp(xs), (zz - zs[0]) / np.ptp(zs)], axis=-1).reshape(-1, 2)
+    return trimesh.Trimesh(
+        vertices,
+        faces,
+        vertex_normals=np.tile([0.0, 1.0, 0.0], (len(vertices), 1)),
+        visual=trimesh.visual.TextureVisuals(uv=uv),
+        process=False,
+    )
+
+
+def test_a_sphere_sees_the_whole_sky():
+    np.testing.assert_array_equal(vertex_occlusion(SPHERE), 1.0)
+
+
+def test_a_wall_hides_the_wedge_of_sky_below_its_top_edge():
+    height, half_width = 10.0, 100.0  # the wall's width is 10 times the farthest distance: practically infinite
+    distances = np.array([2.5, 5.0, 10.0, 20.0])
+    floor = floor_grid(np.array([-4.0, 0.0, 4.0]), np.concatenate([[0.0], distances, [25.0]]))
+    wall = trimesh.Trimesh(
+        [[-half_width, 0.0, 0.0], [half_width, 0.0, 0.0], [half_width, height, 0.0], [-half_width, height, 0.0]],
+        [[0, 1, 2], [0, 2, 3]],
+        vertex_normals=np.tile([0.0, 0.0, 1.0], (4, 1)),
+        visual=trimesh.visual.TextureVisuals(uv=np.zeros((4, 2))),
+        process=False,
+    )
+    ao = vertex_occlusion(floor, [wall], n_directions=400, size=1024)
+    for d in distances:
+        at = np.flatnonzero((floor.vertices[:, 0] == 0.0) & (floor.vertices[:, 2] == d))[0]
+        alpha = np.arctan2(height, d)
+        assert ao[at] == pytest.approx((1.0 + np.cos(alpha)) / 2.0, rel=0.03), d
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """n unit vectors spread evenly over the sphere: z_k = 1 - (2k + 1) / n, azimuth k times the golden angle."""
+    k = np.arange(n)
+    z = 1.0 - (2.0 * k + 1.0) / n
+    azimuth = k * np.pi * (3.0 - np.sqrt(5.0))
+    rho = np.sqrt(1.0 - z * z)
+    return np.stack([rho * np.cos(azimuth), rho * np.sin(azimuth), z], axis=1)
+
+
+def ray_hits(triangles: np.ndarray, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Whether each ray from ``origin`` along ``directions`` (k, 3) meets any of ``triangles`` (n, 3, 3): the
+    Moller-Trumbore test, a hit at u, v >= 0, u + v <= 1 and distance t > 0."""
+    e1, e2 = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
+    to_origin = origin - triangles[:, 0]
+    q = np.cross(to_origin, e1)
+    p = np.cross(directions[:, None, :], e2[None])
+    det = np.einsum("kij,ij->ki", p, e1)
+    inverse = 1.0 / np.where(np.abs(det) > 1e-12, det, np.inf)
+    u = np.einsum("kij,ij->ki", p, to_origin) * inverse
+    v = (directions @ q.T) * inverse
+    t = np.sum(e2 * q, axis=1) * inverse
+    return np.any((u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 1e-6), axis=1)
+
+
+def test_the_heads_baked_occlusion_agrees_with_ray_casting():
+    """The bundled head with its eyes, at the default settings: at sampled vertices, the cosine-weighted share of 200
+    directions whose rays (from just off the surface) meet nothing, cast here against every triangle."""
+    head_dir = ROOT / "recipes" / "head"
+    head = load_mesh(head_dir / "head.obj")
+    eyes = [load_mesh(head_dir / f"eyes_{part}.obj") for part in ("sclera", "iris", "pupil")]
+    baked = vertex_occlusion(head, eyes)
+    triangles = np.concatenate([np.asarray(m.vertices)[m.faces] for m in (head, *eyes)])
+    directions = fibonacci_directions(200)
+    points, normals = np.asarray(head.vertices), np.asarray(head.vertex_normals)
+    sample = np.random.default_rng(7).choice(len(points), 16, replace=False)
+    cast = []
+    for i in sample:
+        weight = np.maximum(directions @ normals[i], 0.0)
+        open_sky = ~ray_hits(triangles, points[i] + 0.05 * normals[i], directions[weight > 0.0])
+        cast.append(np.sum(weight[weight > 0.0] * open_sky) / np.sum(weight))
+    assert np.ptp(cast) > 0.5  # the sample holds open skin and hidden creases
+    np.testing.assert_allclose(baked[sample], cast, atol=0.1)
+    assert np.mean(np.abs(baked[sample] - cast)) < 0.03
+
+
+# 7. Soft shadows.
+
+
+def disc_light_profile_width(diameter: float) -> float:
+    """The 10-90 % width of the lit fraction behind a straight edge under a disc of ``diameter`` (mm): the disc's
+    area beyond a chord at s radii from its centre, f(s) = 1 - (acos s - s sqrt(1 - s^2)) / pi."""
+    lit = lambda s, level: 1.0 - (np.arccos(s) - s * np.sqrt(1.0 - s * s)) / np.pi - level  # noqa: E731
+    return diameter / 2.0 * (optimize.brentq(lit, -1.0, 1.0, (0.9,)) - optimize.brentq(lit, -1.0, 1.0, (0.1,)))
+
+
+def edge_profile(angle_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lit fraction across the shadow's edge on a floor (albedo 0.8) under a half-plane card 10 mm above it (its
+    edge at x = 0), light straight down; the camera looks down from just below the card (its near plane clips the card
+    away). Returns x (mm) of the columns, the rows' mean lit fraction per column, and the image."""
+    width, height, half, gap = 128, 16, 16.0, 10.0
+    camera = OrthographicCamera(half_height=half * height / width, eye=(0.0, 0.0, gap - 0.5), near=1.0, far=50.0)
+    model = np.eye(4)
+    model[:3, 3] = (-20.0, 0.0, gap)
+    card = Prop(meshes.card(40.0, 40.0), (0.5, 0.5, 0.5), model)
+    light = DirectionalLight((0.0, 0.0, -1.0), (1.0, 1.0, 1.0), angle_deg=angle_deg)
+    image = render_layers(
+        Scene(
+            mesh=meshes.card(60.0, 60.0),
+            stack=ChannelStack((), (), (0.8,) * 3),
+            camera=camera,
+            lights=[light],
+            resolution=(width, height),
+            props=[card],
+            shadow_map_size=512,
+        )
+    )
+    x = -half + (np.arange(width) + 0.5) * (2.0 * half / width)
+    return x, image[..., 0].mean(axis=0) / 0.8, image
+
+
+def transition(x: np.ndarray, lit: np.ndarray) -> float:
+    """Width (mm) between where the (monotone envelope of the) lit fraction first reaches 10 % and 90 %."""
+    envelope = np.maximum.accumulate(lit)
+    return float(np.interp(0.9, envelope, x) - np.interp(0.1, envelope, x))
+
+
+def test_an_area_light_softens_the_shadow_edge_by_its_penumbra():
+    """Hard light: an edge within 3 pixels. A light of angular diameter theta: the lit fraction of its disc, of
+    diameter D = g 2 tan(theta / 2) seen from the floor at the card's height, as the 10-90 % width of the edge;
+    well beyond D / 2 from the edge the floor is in full light (as under the hard light) or full shadow."""
+    x, hard, hard_image = edge_profile(0.0)
+    assert transition(x, hard) <= 3.0 * (x[1] - x[0])
+    measured, expected = [], []
+    for angle in (10.0, 20.0, 30.0):
+        x, soft, soft_image = edge_profile(angle)
+        diameter = 10.0 * 2.0 * np.tan(np.radians(angle) / 2.0)
+        far = np.abs(x) > diameter + 1.0  # well beyond the penumbra's D / 2 each side of the edge
+        np.testing.assert_array_equal(soft_image[:, far & (x > 0)], hard_image[:, far & (x > 0)])
+        np.testing.assert_array_equal(soft_image[:, far & (x < 0)], 0.0)
+        measured.append(transition(x, soft))
+        expected.append(disc_light_profile_width(diameter))
+    assert measured[0] < measured[1] < measured[2]
+    np.testing.assert_allclose(measured, expected, rtol=0.35)
+
+
+# 8. Backdrops.
+
+
+def test_a_sweep_faces_the_camera_side_with_exact_unit_normals():
+    radius, depth, height = 20.0, 50.0, 80.0
+    sweep = meshes.sweep(100.0, depth, radius, height)
+    p, n = np.asarray(sweep.vertices), np.asarray(sweep.vertex_normals)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    floor = np.isclose(p[:, 1], 0.0) & (p[:, 2] >= 0.0)
+    wall = np.isclose(p[:, 2], -radius) & (p[:, 1] >= radius)
+    cove = ~floor & ~wall
+    assert floor.any() and wall.any() and cove.sum() > 10
+    np.testing.assert_allclose(n[floor], np.broadcast_to([0.0, 1.0, 0.0], n[floor].shape), atol=1e-12)
+    np.testing.assert_allclose(n[wall], np.broadcast_to([0.0, 0.0, 1.0], n[wall].shape), atol=1e-12)
+    towards_centre = (np.array([0.0, radius, 0.0]) - p[cove] * [0.0, 1.0, 1.0]) / radius  # the cove's axis: y=R, z=0
+    np.testing.assert_allclose(np.linalg.norm(towards_centre, axis=1), 1.0, atol=1e-9)  # the cove is that circle
+    np.testing.assert_allclose(n[cove], towards_centre, atol=1e-9)
+    assert p[:, 2].max() == pytest.approx(depth) and p[:, 1].max() == pytest.approx(height)
+    corners = p[sweep.faces]
+    winding = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    assert np.all(np.einsum("ij,ij->i", winding, n[sweep.faces].mean(axis=1)) > 0.0)  # front faces the camera side
+    assert np.all(n @ [0.0, 1.0, 1.0] > 0.0)
+
+
+def test_a_gradient_background_runs_from_top_to_bottom_by_smoothstep():
+    top, bottom = np.array([0.9, 0.6, 0.3]), np.array([0.1, 0.2, 0.05])
+    width, height = 40, 30
+    camera = OrthographicCamera(half_height=20.0)
+    image = render_layers(
+        scene(
+            camera=camera,
+            resolution=(width, height),
+            lights=[HEAD_ON],
+            background=GradientBackground(tuple(top), tuple(bottom)),
+        )
+    )
+    t = (np.arange(height) + 0.5) / height
+    s = 3.0 * t**2 - 2.0 * t**3
+    expected = top + (bottom - top) * s[:, None]
+    for column in (0, 1, width - 1):  # the sphere covers the middle columns only
+        np.testing.assert_allclose(image[:, column], expected, rtol=1e-6)
+    assert np.abs(image[0, 0] - top).max() < 0.01 and np.abs(image[-1, 0] - bottom).max() < 0.01
+    pixel = 2.0 * camera.half_height / height  # mm; the sphere itself, lit head-on, renders its normal's z
+    x, y = (width // 2 + 0.5) * pixel - 0.5 * width * pixel, 0.5 * height * pixel - (height // 2 + 0.5) * pixel
+    np.testing.assert_allclose(image[height // 2, width // 2], np.sqrt(1.0 - (x * x + y * y) / 100.0), rtol=1e-5)
+
+
+def test_a_visible_environment_shows_behind_the_product_along_each_camera_ray():
+    """A perspective camera off the axes; each pixel no surface covers shows the environment along its ray (a smooth
+    environment written from the docstring's mapping), times the intensity."""
+    shade = lambda d: 0.5 + 0.3 * d[..., 0] - 0.2 * d[..., 1] + 0.1 * d[..., 2]  # noqa: E731
+    width, height, fov = 40, 30, 60.0
+    camera = PerspectiveCamera(fov_y_deg=fov, eye=(30.0, 20.0, 100.0), near=1.0, far=1000.0)
+    environment = Environment(environment_of(shade, 512), intensity=2.0, visible=True)
+    image = render_layers(
+        scene(mesh=meshes.sphere(3.0), camera=camera, resolution=(width, height), environment=environment)
+    )
+    forward = -np.asarray(camera.eye) / np.linalg.norm(camera.eye)
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    tan = np.tan(np.radians(fov) / 2.0)
+    x = ((np.arange(width) + 0.5) / width * 2.0 - 1.0) * tan * width / height
+    y = (1.0 - (np.arange(height) + 0.5) / height * 2.0) * tan
+    xx, yy = np.meshgrid(x, y)
+    rays = forward + xx[..., None] * right + yy[..., None] * up
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    expected = 2.0 * shade(rays)
+    behind = np.abs(image[..., 0] - expected) < 1e-3
+    assert behind.sum() >= width * height - 12  # all but the few pixels of the small sphere
+    np.testing.assert_allclose(image[behind], np.repeat(expected[behind][:, None], 3, axis=1), atol=2e-4)
+
+
+# 9. Normal maps.
+
+
+def card_scene(normal_map: NormalMap | None, to_light=(0.0, 0.0, 1.0), stack: ChannelStack | None = None) -> Scene:
+    light = DirectionalLight(tuple(-np.asarray(to_light, float)), (1.0, 1.0, 1.0), cast_shadows=False)
+    return scene(
+        mesh=CARD,
+        stack=stack or ChannelStack((), (), (0.6,) * 3),
+        lights=[light],
+        resolution=(16, 16),
+        normal_map=normal_map,
+    )
+
+
+def tilted(a: float, axis: int = 0, shape=(4, 4)) -> np.ndarray:
+    normals = np.zeros((*shape, 3))
+    normals[..., axis], normals[..., 2] = np.sin(a), np.cos(a)
+    return normals
+
+
+def test_a_flat_normal_map_changes_nothing():
+    flat = np.zeros((4, 4, 3))
+    flat[..., 2] = 1.0
+    for to_light in ((0.0, 0.0, 1.0), (0.4, -0.3, 0.8)):
+        plain = render_layers(card_scene(None, to_light))
+        assert np.abs(render_layers(card_scene(NormalMap(flat), to_light)) - plain).max() <= 1e-6
+
+
+def test_a_tilted_normal_map_tilts_the_lambert_term_along_u_and_v():
+    a = np.radians(30.0)
+    plain = render_layers(card_scene(None))[8, 8]
+    np.testing.assert_allclose(render_layers(card_scene(NormalMap(tilted(a))))[8, 8], plain * np.cos(a), rtol=1e-5)
+    # x is +u (= +x here) and y is +v (= +y): a light along the tilted normal renders as head-on, one mirrored
+    # across the card's normal at cos(2 a).
+    for axis in (0, 1):
+        towards = np.zeros(3)
+        towards[axis], towards[2] = np.sin(a), np.cos(a)
+        mirrored = towards * [-1.0, -1.0, 1.0]
+        normal_map = NormalMap(tilted(a, axis))
+        np.testing.assert_allclose(render_layers(card_scene(normal_map, towards))[8, 8], plain, rtol=1e-5)
+        np.testing.assert_allclose(
+            render_layers(card_scene(normal_map, mirrored))[8, 8], plain * np.cos(2 * a), rtol=1e-5
+        )
+
+
+def test_a_normal_map_is_read_with_row_zero_at_the_top():
+    a = np.radians(40.0)
+    normals = tilted(a, shape=(8, 8))
+    normals[4:] = (0.0, 0.0, 1.0)  # the bottom half (v < 1/2) flat
+    image = render_layers(card_scene(NormalMap(normals)))
+    plain = render_layers(card_scene(None))
+    np.testing.assert_allclose(image[1, 8], plain[1, 8] * np.cos(a), rtol=1e-5)  # near the top: tilted
+    np.testing.assert_allclose(image[14, 8], plain[14, 8], rtol=1e-5)  # near the bottom: flat
+
+
+@pytest.mark.parametrize("thickness_mm", [0.005, 0.01, 0.02])
+def test_a_film_fills_the_detail_by_its_thickness(thickness_mm):
+    """The film's own reflectance cancels in the ratio of renders with and without the map."""
+    a, fill = np.radians(35.0), 0.01
+    table = LayerTable(np.array([0.0, 0.03]), np.array([[0.0] * 3, [0.3, 0.25, 0.2]]), np.array([[1.0] * 3, [0.6] * 3]))
+    stack = ChannelStack((table,), (thickness_mm,), (0.6, 0.5, 0.4))
+    k = np.exp(-thickness_mm / fill)
+    expected = np.cos(a) / np.sqrt(k**2 * np.sin(a) ** 2 + np.cos(a) ** 2)
+    with_map = render_layers(card_scene(NormalMap(tilted(a), thickness_mm, fill), stack=stack))[8, 8]
+    without = render_layers(card_scene(None, stack=stack))[8, 8]
+    np.testing.assert_allclose(with_map / without, expected, rtol=1e-5)
+
+
+# 10. Lobe cover.
+
+
+def test_a_film_of_no_thickness_leaves_the_substrate_and_its_lobe_as_they_were():
+    table = LayerTable(np.array([0.0, 0.02]), np.array([[0.0] * 3, [0.4, 0.3, 0.2]]), np.array([[1.0] * 3, [0.5] * 3]))
+    substrate, lobe = (0.5, 0.4, 0.3), Specular(0.3, 1.4)
+    light = DirectionalLight((-0.3, -0.2, -1.0), (1.0, 1.0, 1.0), cast_shadows=False)
+    for environment in (None, uniform(0.6), Environment(studio_environment(64))):
+        bare = scene(
+            stack=ChannelStack((), (), substrate), lights=[light], substrate_lobe=lobe, environment=environment
+        )
+        filmed = dataclasses.replace(bare, stack=ChannelStack((table,), (0.0,), substrate), lobes=[Specular(0.1, 2.0)])
+        np.testing.assert_array_equal(render_layers(filmed), render_layers(bare))
+
+
+@pytest.mark.parametrize("cover", [0.25, 0.5, 2.0])
+def test_a_thin_films_lobe_grows_with_its_cover(cover):
+    """The top film's lobe at normal light and view adds clamp(x / LOBE_COVER_MM, 0, 1) pi f_spec E."""
+    thickness = cover * LOBE_COVER_MM
+    table = LayerTable(np.array([0.0, 0.02]), np.array([[0.0] * 3, [0.4, 0.3, 0.2]]), np.array([[1.0] * 3, [0.5] * 3]))
+    lobe = Specular(0.3, 1.5)
+    plain = scene(mesh=CARD, stack=ChannelStack((table,), (thickness,), (0.5,) * 3), lights=[HEAD_ON])
+    added = render_layers(dataclasses.replace(plain, lobes=[lobe]))[24, 24] - render_layers(plain)[24, 24]
+    f_spec = 1.0 / (np.pi * 0.3**2) * lobe.f0 / 4.0  # h = n = l = v: tan a = 0, F = F0, 1 / (2 (1 + 1))
+    np.testing.assert_allclose(added, min(cover, 1.0) * np.pi * f_spec, rtol=1e-4)
+
+
+# 11. Roughness maps.
+
+
+def test_a_uniform_roughness_map_is_the_lobe_of_that_roughness():
+    light = DirectionalLight((-0.3, -0.2, -1.0), (1.0, 1.0, 1.0), cast_shadows=False)
+    for environment in (None, Environment(studio_environment(64))):
+        base = scene(lights=[light], environment=environment, stack=ChannelStack((), (), (0.3,) * 3))
+        for m in (0.1, 0.45):
+            by_map = dataclasses.replace(
+                base, substrate_lobe=Specular(1.0, 1.45), substrate_roughness=np.full((4, 4), m)
+            )
+            by_lobe = dataclasses.replace(base, substrate_lobe=Specular(m, 1.45))
+            assert np.abs(render_layers(by_map) - render_layers(by_lobe)).max() <= 1e-5
+
+
+def test_a_roughness_map_is_read_with_row_zero_at_the_top():
+    roughness = np.full((8, 8), 0.6)
+    roughness[:4] = 0.15  # top half
+    base = scene(mesh=CARD, lights=[HEAD_ON], resolution=(16, 16), stack=ChannelStack((), (), (0.3,) * 3))
+    image = render_layers(dataclasses.replace(base, substrate_lobe=Specular(1.0), substrate_roughness=roughness))
+    for m, row in ((0.15, 1), (0.6, 14)):
+        np.testing.assert_allclose(
+            image[row, 8], render_layers(dataclasses.replace(base, substrate_lobe=Specular(m)))[row, 8], rtol=1e-5
+        )
+
+
+# 12. Environment on and off.
+
+
+def studio_irradiance(normal: np.ndarray) -> float:
+    """E / pi of the studio environment (grey channel 0) for a normal, summed over its pixels here: the sum of
+    L max(n.w, 0) Omega / pi, Omega_r = (2 pi / cols) (cos theta_top - cos theta_bottom) of the pixel's row."""
+    radiance = studio_environment()[..., 0]
+    rows, cols = radiance.shape
+    edges = np.linspace(0.0, np.pi, rows + 1)
+    solid = (2.0 * np.pi / cols) * (np.cos(edges[:-1]) - np.cos(edges[1:]))
+    cosine = np.maximum(equirect_directions(cols, rows) @ normal, 0.0)
+    return float(np.sum(radiance * cosine * solid[:, None]) / np.pi)
+
+
+def test_without_an_environment_the_frame_is_as_before_and_with_one_the_unlit_side_is_lit():
+    side = DirectionalLight((-1.0, 0.0, -0.2), (1.0, 1.0, 1.0))  # lights the sphere's +x side
+    stack = ChannelStack((), (), (1.0,) * 3)
+    before = Scene(mesh=SPHERE, stack=stack, camera=CAMERA, lights=[side], resolution=(SIZE, SIZE))
+    off = dataclasses.replace(before, environment=None, occlusion=None, normal_map=None, substrate_roughness=None)
+    plain = render_layers(before)
+    np.testing.assert_array_equal(render_layers(off), plain)
+    studio = render_layers(dataclasses.replace(before, environment=Environment(studio_environment())))
+    unlit = (plain.sum(axis=-1) == 0.0) & covered(render_layers(dataclasses.replace(before, background=BACKGROUND)))
+    assert unlit.sum() > 0.2 * SIZE * SIZE
+    assert studio[unlit].min() > 0.05
+    assert np.all(studio >= plain)  # the environment only adds light
+    # Where the light does not reach, the white sphere shows the studio's irradiance over pi along its normal.
+    pixel = 2.0 * CAMERA.half_height / SIZE
+    for row, column in ((24, 6), (10, 12), (38, 12), (24, 14)):
+        assert unlit[row, column]
+        x, y = (column + 0.5) * pixel - CAMERA.half_height, CAMERA.half_height - (row + 0.5) * pixel
+        normal = np.array([x, y, np.sqrt(100.0 - x * x - y * y)]) / 10.0
+        assert studio[row, column, 0] == pytest.approx(studio_irradiance(normal), rel=0.03), (row, column)
