@@ -3,8 +3,9 @@
 One product (sample F1, fitted from recipes/samples/F1, 20 um of foundation over ColorChecker light skin) on the
 compact pan mesh over a ground, a specular lobe, a shadowing directional light and a point fill light, a 36-frame
 turntable, written as EXR and PNG like ``kmpipe render`` does (a warm-up frame first,
-so context creation and shader compilation are left out). Target from the issue: 36 frames at 512 x 512 in under
-10 s on this 2-core machine.
+so context creation and shader compilation are left out), one sample a pixel and no videos: this table measures the
+render modes (antialiasing, the environment and the backdrop are bench_look's). Target from the issue: 36 frames at
+512 x 512 in under 10 s on this 2-core machine.
 
 Run alone: ``.venv/bin/python benchmarks/bench_render.py``.
 """
@@ -56,6 +57,10 @@ reflectance = 0.4
 [camera]
 elevation_deg = 35.0
 distance_mm = 180
+
+[output]
+antialias = 1
+video = []
 
 [turntable]
 frames = {frames}

@@ -16,6 +16,7 @@ from pathlib import Path
 import bench_fit
 import bench_fit_grid
 import bench_inversion
+import bench_look
 import bench_render
 import bench_render_modes
 import bench_run
@@ -26,7 +27,9 @@ from common import REPO, Table, machine
 COMMAND = ".venv/bin/python benchmarks/run_all.py"
 
 
-def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, skin_rows: list, run_rows: list) -> Table:
+def _summary(
+    inversion: dict, fit: dict, render_rows: list, mode_rows: list, skin_rows: list, look: dict, run_rows: list
+) -> Table:
     rows = []
     for t in inversion["timings"]:
         if t.data != "noisy":
@@ -87,6 +90,11 @@ def _summary(inversion: dict, fit: dict, render_rows: list, mode_rows: list, ski
                     "yes" if seconds < bench_skin.TARGET_S else "no",
                 ]
             )
+    full = look["look"][0]
+    rows.append([f"the full look at {bench_look.SIZE} x {bench_look.SIZE} (2 x 2 AA), s per frame", "<= 1.0", full[1],
+                 full[5]])  # fmt: skip
+    packshot = look["turntable"][0]
+    rows.append(["36-frame 512 x 512 packshot turntable, environment + AA: s", "<= 10", packshot[1], packshot[3]])
     for r in run_rows:
         rows.append([f"demo line end to end ({r[0]}): s", "< 120", r[2], r[5]])
         rows.append([f"demo line, cached re-run ({r[0]}): s", "< 3", r[4], r[6]])
@@ -142,10 +150,11 @@ def main() -> None:
     mode_rows = measure("Render modes", bench_render_modes)
     render_rows = measure("Rendering", bench_render)
     skin_rows = measure("Makeup on skin", bench_skin)
+    look = measure("The full look", bench_look)
     run_rows = measure("Product line", bench_run)
     total = time.perf_counter() - started
 
-    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, run_rows)
+    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows)
     summary.print()
     for _, tables, _ in parts:
         for table in tables:
@@ -155,8 +164,8 @@ def main() -> None:
     lines = [
         "# Benchmarks",
         "",
-        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering, skin and",
-        "product-line runs,",
+        "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering, skin, the",
+        "full look on the bundled head and product-line runs,",
         "on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",

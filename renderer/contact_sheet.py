@@ -8,10 +8,11 @@ and are used as they are. Text is drawn with OpenImageIO's ``render_text`` (UTF-
 Layout, in pixels, with ``m`` the margin, ``f`` the font size and ``(w, h)`` the cell size::
 
     width  = m + label_width + n_cols * (w + m)
-    height = m + header_height + column_label_height + n_rows * (h + m)
+    height = m + header_height + column_label_height + n_rows * (h + caption_height + m)
 
-where ``header_height = 2 f`` when there is a header (else 0), ``column_label_height = 2 f`` and
-``label_width`` is the widest row label plus ``m`` (0 when every row label is empty).
+where ``header_height = 2 f`` when there is a header (else 0), ``column_label_height = 2 f``, ``label_width`` is the
+widest row label plus ``m`` (0 when every row label is empty) and ``caption_height = 2 f`` on a sheet whose cells
+carry captions of their own (drawn under each cell, cut with an ellipsis to its width; else 0).
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class SheetLayout:
         Gap around and between cells.
     header_height, column_label_height, label_width
         Height of the header band, of the column label band, and width of the row label band.
+    caption_height
+        Height of the caption band under each row of cells (0 without captions).
     """
 
     width: int
@@ -69,12 +72,13 @@ class SheetLayout:
     header_height: int
     column_label_height: int
     label_width: int
+    caption_height: int = 0
 
     def cell_origin(self, row: int, col: int) -> tuple[int, int]:
         """Top-left corner ``(x, y)`` of the cell in ``row``, ``col`` (0-based)."""
         w, h = self.cell_size
         x = self.margin + self.label_width + col * (w + self.margin)
-        y = self.margin + self.header_height + self.column_label_height + row * (h + self.margin)
+        y = self.margin + self.header_height + self.column_label_height + row * (h + self.caption_height + self.margin)
         return x, y
 
     def cell_centre(self, row: int, col: int) -> tuple[int, int]:
@@ -91,8 +95,10 @@ def sheet_layout(
     cell_size: tuple[int, int] = (256, 256),
     margin: int = 8,
     font_size: int = 16,
+    captions: bool = False,
 ) -> SheetLayout:
-    """Compute the layout of a sheet with these labels (see the module docstring for the formulas)."""
+    """Compute the layout of a sheet with these labels, and a caption under each cell if ``captions`` (see the module
+    docstring for the formulas)."""
     n_rows, n_cols = len(rows), len(columns)
     if n_rows < 1 or n_cols < 1:
         raise ValueError(f"a sheet needs at least one row and one column, got {n_rows} x {n_cols}")
@@ -105,9 +111,11 @@ def sheet_layout(
     label_width = max(widths) + margin if widths else 0
     header_height = 2 * font_size if header else 0
     column_label_height = 2 * font_size
+    caption_height = 2 * font_size if captions else 0
     width = margin + label_width + n_cols * (w + margin)
-    height = margin + header_height + column_label_height + n_rows * (h + margin)
-    return SheetLayout(width, height, n_rows, n_cols, (w, h), margin, header_height, column_label_height, label_width)
+    height = margin + header_height + column_label_height + n_rows * (h + caption_height + margin)
+    return SheetLayout(width, height, n_rows, n_cols, (w, h), margin, header_height, column_label_height, label_width,
+                       caption_height)  # fmt: skip
 
 
 def read_frame(path: str | Path) -> np.ndarray:
@@ -155,6 +163,17 @@ def _text(buf: oiio.ImageBuf, x: int, y: int, text: str, font_size: int, box: oi
         raise RuntimeError(f"cannot draw the text {text!r}: {buf.geterror() or oiio.geterror()}")
 
 
+def _shortened(text: str, width: int, font_size: int) -> str:
+    """``text``, cut and ended with an ellipsis until it is at most ``width`` pixels wide (at ``font_size``)."""
+    if not text or oiio.ImageBufAlgo.text_size(text, font_size).width <= width:
+        return text
+    for end in range(len(text) - 1, 0, -1):
+        cut = text[:end].rstrip() + "…"
+        if oiio.ImageBufAlgo.text_size(cut, font_size).width <= width:
+            return cut
+    return ""
+
+
 def make_sheet(
     frames: Sequence[str | Path],
     *,
@@ -165,6 +184,7 @@ def make_sheet(
     cell_size: tuple[int, int] = (256, 256),
     margin: int = 8,
     font_size: int = 16,
+    captions: Sequence[str] | None = None,
 ) -> oiio.ImageBuf:
     """Lay frames out in a labelled grid and return the sheet as an 8-bit sRGB RGB ImageBuf.
 
@@ -186,11 +206,13 @@ def make_sheet(
         Gap in pixels around and between cells.
     font_size
         Text size in pixels.
+    captions
+        One line under each frame's cell (one per frame, cut with an ellipsis to the cell's width), or None.
 
     Raises
     ------
     ValueError
-        Labels and grid disagree, or more frames than cells.
+        Labels and grid disagree, more frames than cells, or captions not one per frame.
     FrameError
         A frame file is missing or unreadable (its path is in the error).
     """
@@ -199,7 +221,10 @@ def make_sheet(
         raise ValueError(f"grid {tuple(grid)} does not match {shape[0]} row labels and {shape[1]} column labels")
     if len(frames) > shape[0] * shape[1]:
         raise ValueError(f"{len(frames)} frames do not fit a {shape[0]} x {shape[1]} grid")
-    layout = sheet_layout(rows, columns, header=header, cell_size=cell_size, margin=margin, font_size=font_size)
+    if captions is not None and len(captions) != len(frames):
+        raise ValueError(f"{len(captions)} captions for {len(frames)} frames: give one per frame")
+    layout = sheet_layout(rows, columns, header=header, cell_size=cell_size, margin=margin, font_size=font_size,
+                          captions=captions is not None)  # fmt: skip
     images = [read_frame(path) for path in frames]  # read all first: a bad file fails before any drawing
 
     sheet = oiio.ImageBuf(oiio.ImageSpec(layout.width, layout.height, 3, oiio.FLOAT))
@@ -226,6 +251,11 @@ def make_sheet(
         _, y = layout.cell_origin(row, 0)
         box = oiio.ROI(0, m + layout.label_width, y, y + h, 0, 1, 0, 3)
         _text(sheet, m, y + h // 2, label, f, box, aligny="center")
+    for i, caption in enumerate(captions or ()):
+        x, y = layout.cell_origin(*divmod(i, layout.n_cols))
+        box = oiio.ROI(x, x + w, y + h, y + h + layout.caption_height, 0, 1, 0, 3)
+        text = _shortened(caption, w, f)
+        _text(sheet, x + w // 2, y + h + layout.caption_height // 2, text, f, box, alignx="center", aligny="center")
 
     codes = np.rint(np.clip(sheet.get_pixels(oiio.FLOAT), 0.0, 1.0) * 255.0).astype(np.uint8)
     out = oiio.ImageBuf(oiio.ImageSpec(layout.width, layout.height, 3, oiio.UINT8))

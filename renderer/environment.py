@@ -11,7 +11,8 @@ pixels sum to 4 pi to rounding). :attr:`Environment.rotation_deg` turns the envi
 seen from above); ``intensity`` scales it.
 
 Prefiltering (once per environment image, :func:`prefiltered`). With L(w) the radiance and the sums over the pixels
-of a downsampled copy (:data:`SOURCE_SIZE`):
+of a copy of the image area-averaged to the map's own size (:data:`IRRADIANCE_SIZE`; each specular level's size in
+:data:`SPECULAR_LEVELS`, then resized to :data:`SPECULAR_SIZE`):
 
 * diffuse: the irradiance over pi of each normal n, ``E(n) / pi = sum L max(n.w, 0) Omega / sum max(n.w, 0) Omega``
   (normalised by the discrete cosine integral, so that a uniform environment of radiance L gives exactly L: a white

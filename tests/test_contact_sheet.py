@@ -212,3 +212,38 @@ def test_cli_unreadable_frame_and_wrong_label_count_exit_2(frames, tmp_path, cap
     status = main(["sheet", *map(str, frames), "-o", str(tmp_path / "s.png"), "--columns", "3", "--row-labels", "x"])
     assert status == 2
     assert "--row-labels" in capsys.readouterr().err
+
+
+def test_captions_go_under_their_own_cells(frames):
+    captions = ["Rouge · Berry", "", "Velvet · 02"]
+    buf = make_sheet(frames[:3], rows=[""], columns=["", "", ""], cell_size=CELL, margin=MARGIN, font_size=FONT,
+                     captions=captions)  # fmt: skip
+    layout = sheet_layout([""], ["", "", ""], cell_size=CELL, margin=MARGIN, font_size=FONT, captions=True)
+    pixels = _pixels(buf)
+    assert layout.caption_height == 2 * FONT
+    assert pixels.shape == (MARGIN + 2 * FONT + CELL[1] + 2 * FONT + MARGIN, MARGIN + 3 * (CELL[0] + MARGIN), 3)
+    for col, caption in enumerate(captions):
+        x, y = layout.cell_origin(0, col)
+        band = pixels[y + CELL[1] : y + CELL[1] + layout.caption_height, x : x + CELL[0]]
+        assert (_drawn(band) > 10) == bool(caption), caption
+    with pytest.raises(ValueError, match="2 captions for 3 frames"):
+        make_sheet(frames[:3], rows=[""], columns=["", "", ""], captions=captions[:2])
+
+
+def test_a_sheet_of_one_frame_per_product_captions_each_cell(tmp_path):
+    from kmpipe.stages.sheet import write_contact_sheet
+
+    paths = []
+    for i, (product, shade) in enumerate([("Rouge", "Berry"), ("Velvet", "02"), ("Glow", "Glow")]):
+        paths.append(tmp_path / f"{i}.exr")
+        write_exr(paths[-1], np.full((16, 16, 3), 0.3), {"product": product, "shade": shade,
+                  "camera_azimuth_deg": 0.0, "scene": "s", "illuminant": "D65"})  # fmt: skip
+    written = write_contact_sheet(paths, tmp_path / "sheet.png", columns=2, cell=CELL[0], captions=True)
+    assert written.grid == (2, 2)
+    layout = sheet_layout(["", ""], ["", ""], header="s · D65 · x", cell_size=(CELL[0],) * 2, captions=True)
+    assert written.size == (layout.width, layout.height)
+    pixels = read_png(written.path)
+    assert _drawn(pixels[:, : layout.cell_origin(0, 0)[0]]) == 0  # no row labels
+    for i in range(3):
+        x, y = layout.cell_origin(*divmod(i, 2))
+        assert _drawn(pixels[y + CELL[0] : y + CELL[0] + layout.caption_height, x : x + CELL[0]]) > 10

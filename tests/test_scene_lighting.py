@@ -310,3 +310,21 @@ def test_the_environment_and_the_maps_are_inputs_of_the_scene(tmp_path, material
     }
     assert scene.environment.shape == (32, 64, 3) and np.all(scene.environment == 0.5)
     np.testing.assert_allclose(scene.roughness, 0.3, atol=1e-4)
+
+
+@pytest.mark.parametrize("mode", ["rgb", "exact", "bands:6"])
+def test_a_glossy_film_of_no_thickness_leaves_the_surface_as_it_was(tmp_path, material, mode, capsys):
+    """A film's lobe goes with the film: a glossy film of 0 um renders exactly as the same film without a lobe (in
+    the shader's modes and in exact mode, where kmpipe composes the stack), on a substrate and on skin."""
+    frames = []
+    for specular in ("specular = { roughness = 0.2, ior = 1.5 }", ""):
+        folder = tmp_path / ("glossy" if specular else "matte")
+        folder.mkdir()
+        scene = write_scene(folder, material, mode=mode, thickness="0 um", extra="")
+        text = scene.read_text(encoding="utf-8").replace('thickness = "0 um"\n', f'thickness = "0 um"\n{specular}\n')
+        scene.write_text(text, encoding="utf-8")
+        status, image = render(scene, folder / "out")
+        assert status == 0
+        frames.append(image)
+    np.testing.assert_array_equal(frames[0], frames[1])
+    assert frames[0].max() > 0.1

@@ -6,7 +6,6 @@ stacks and thicknesses are the ones recipes/thesis/README.md states, written out
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
@@ -129,11 +128,13 @@ def test_every_panel_has_the_same_front_camera_and_light():
     assert {s.turntable for s in scenes} == {None}
 
 
-def test_the_figure_sheet_lays_out_the_frames_the_run_renders(tmp_path):
-    """figure_sheet.sh names, in figure order, exactly the frames the plan's render tasks write."""
-    script = (THESIS / "figure_sheet.sh").read_text(encoding="utf-8")
-    named = re.findall(r'"\$f/([a-z0-9-]+)/frame_000\.exr"', script)
-    assert named == [slug(name) for name in FIGURE_ORDER]
+def test_the_runs_sheet_lays_the_panels_out_as_the_figures(tmp_path):
+    """One frame per panel: the sheet fills four columns row by row, in figure order (5.5, 5.58, 5.59), each cell
+    captioned with its panel (the frames the plan's render tasks write)."""
     plan = plan_run(RECIPE, tmp_path / "out")
+    [sheet] = [t for t in plan.tasks.values() if t.kind == "sheet"]
+    assert sheet.args["captions"] is True and sheet.args["columns"] == 4
+    frames = [f for row in sheet.args["rows"] for f in row["frames"]]
+    assert frames == [str(tmp_path / "out" / "frames" / slug(name) / "frame_000.exr") for name in FIGURE_ORDER]
     rendered = [o for t in plan.tasks.values() if t.kind == "render" for o in t.outputs if o.endswith(".exr")]
-    assert rendered == [f"frames/{s}/frame_000.exr" for s in named]
+    assert rendered == [f"frames/{slug(name)}/frame_000.exr" for name in FIGURE_ORDER]

@@ -316,17 +316,21 @@ def plan_run(
         claims.file(rel(reports_dir / "summary.json"), "reports", "the index of the reports", "outputs.reports")
     if outputs.sheet is not None and rows:
         sheet = inside(out_dir, outputs.sheet, recipe.where(("outputs", "sheet")))
-        count = min(outputs.sheet_columns, min(row[4] for row in rows))
-        cell = _sheet_cell(recipe, count, [row[5] for row in rows])
+        stills = len(rows) > 1 and max(row[4] for row in rows) == 1  # one frame each: products fill the columns
+        count = min(outputs.sheet_columns, len(rows) if stills else min(row[4] for row in rows))
+        pixels = [row[5] for row in rows]  # of one frame of each product
+        reads = sum(pixels) if stills else count * sum(pixels)
+        cell = _sheet_cell(recipe, count, -(-len(rows) // count) if stills else len(rows), reads)
         # each product's turntable sampled at `count` evenly spaced frames; labels come from the frames' headers
         picked = [{"chunks": row[2], "frames": [str(row[3] / f"frame_{round(k * row[4] / count):03d}.exr")
-                                                for k in range(count)]} for row in rows]  # fmt: skip
+                                                for k in range(1 if stills else count)]} for row in rows]  # fmt: skip
         chunks = [c for row in rows for c in row[2]]
         header = f"{info.line.name} · {info.line.illuminant}"
         dated = f"{header} · {datetime.date.today().isoformat()}"  # the date the sheet is made, not part of its key
         add(Task("sheet", "", None, tuple(chunks),
-                 task_key("sheet", [tasks[c].key for c in chunks], count, header, cell), (rel(sheet),), do_sheet,
-                 {"rows": picked, "out": str(sheet), "header": dated, "columns": count, "cell": cell}),
+                 task_key("sheet", [tasks[c].key for c in chunks], count, header, cell, stills), (rel(sheet),),
+                 do_sheet, {"rows": picked, "out": str(sheet), "header": dated, "columns": count, "cell": cell,
+                            "captions": stills}),
             "the contact sheet", "outputs.sheet")  # fmt: skip
 
     plan = RunPlan(recipe, out_dir, tasks, keep_going)
@@ -334,16 +338,15 @@ def plan_run(
     return plan
 
 
-def _sheet_cell(recipe: Recipe, columns: int, frame_pixels: list[int]) -> int:
-    """The side of the contact sheet's cells: 256 px, less for a line so long that the sheet would pass
-    :data:`SHEET_PIXELS`; refused (InputError at ``outputs.sheet``) if the cells would be under 16 px or the frames the
-    sheet reads pass :data:`SHEET_FRAME_PIXELS` (every one is in memory while the sheet is made)."""
-    cells = columns * len(frame_pixels)
-    cell = min(256, math.isqrt(SHEET_PIXELS // cells) - 8)  # cells and the 8 px margins between them
-    reads = columns * sum(frame_pixels)
+def _sheet_cell(recipe: Recipe, columns: int, sheet_rows: int, reads: int) -> int:
+    """The side of the contact sheet's cells (``sheet_rows`` rows of ``columns``): 256 px, less for a line so long
+    that the sheet would pass :data:`SHEET_PIXELS`; refused (InputError at ``outputs.sheet``) if the cells would be
+    under 16 px or the frames the sheet reads (``reads`` pixels) pass :data:`SHEET_FRAME_PIXELS` (every one is in
+    memory while the sheet is made)."""
+    cell = min(256, math.isqrt(SHEET_PIXELS // (columns * sheet_rows)) - 8)  # cells and the 8 px margins between them
     if cell < 16 or reads > SHEET_FRAME_PIXELS:
         raise InputError(
-            f"a contact sheet of {len(frame_pixels)} products by {columns} angles is larger than kmpipe makes: at "
+            f"a contact sheet of {sheet_rows} rows by {columns} columns is larger than kmpipe makes: at "
             f"most {SHEET_PIXELS // 10**6} million pixels, in cells of 16 px or more, from at most "
             f"{SHEET_FRAME_PIXELS // 10**6} million pixels of frames (this one reads {reads // 10**6} million); give "
             "fewer outputs.sheet_columns, a smaller scene.resolution, or run part of the line with --only",

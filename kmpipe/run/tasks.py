@@ -186,11 +186,13 @@ def do_reports(entries: list[tuple[str, str]], out: str) -> dict:
     return {"index": str(index_reports(entries, out))}
 
 
-def do_sheet(rows: list[dict], out: str, header: str, columns: int, cell: int) -> dict:
+def do_sheet(rows: list[dict], out: str, header: str, columns: int, cell: int, captions: bool = False) -> dict:
     """The contact sheet: a row per product (its ``frames``), ``columns`` frames each, in cells of ``cell`` pixels
     square, labelled from the frames' headers (product and shade, a warning mark where validation failed, camera
-    azimuth per column)."""
+    azimuth per column); with ``captions`` (a line of one frame per product) the products fill ``columns`` columns
+    row by row, each cell captioned with its product and shade."""
     from kmpipe.stages.sheet import write_contact_sheet
 
-    write_contact_sheet([f for row in rows for f in row["frames"]], out, columns=columns, header=header, cell=cell)
+    frames = [f for row in rows for f in row["frames"]]
+    write_contact_sheet(frames, out, columns=columns, header=header, cell=cell, captions=captions)
     return {"sheet": out}

@@ -22,11 +22,13 @@ FAILED_MARK = "⚠ "
 
 @dataclass(frozen=True)
 class SheetLabels:
-    """Labels of a sheet: one per row (drawn left), one per column (drawn above) and a header line."""
+    """Labels of a sheet: one per row (drawn left), one per column (drawn above), a header line, and one per frame
+    (the caption a sheet of one frame per product draws under each cell)."""
 
     rows: list[str]
     columns: list[str]
     header: str
+    cells: list[str]
 
 
 @dataclass(frozen=True)
@@ -42,8 +44,8 @@ def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabel
     """Row and column labels and header of a sheet of ``frames`` (row-major) in ``n_rows`` x ``n_cols`` cells.
 
     Frames that ``kmpipe render`` wrote (EXR with ``product`` and ``camera_azimuth_deg`` attributes) give
-    "product · shade" per row (the product alone when the shade is its name; marked with :data:`FAILED_MARK` when
-    the frame's ``validation`` attribute says it failed), the camera's azimuth in degrees per
+    "product · shade" per row and per frame (the product alone when the shade is its name; marked with
+    :data:`FAILED_MARK` when the frame's ``validation`` attribute says it failed), the camera's azimuth in degrees per
     column (from the first row) and "scene · illuminant · today's date" across the top; any other frames give their
     file stems and no header.
     """
@@ -57,7 +59,7 @@ def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabel
             headers.append({})  # unreadable: make_sheet names it
     if not all("product" in h and "camera_azimuth_deg" in h for h in headers):
         rows = [frames[r * n_cols].stem for r in range(n_rows)]
-        return SheetLabels(rows, [p.stem for p in frames[:n_cols]], "")
+        return SheetLabels(rows, [p.stem for p in frames[:n_cols]], "", [p.stem for p in frames])
 
     def row_label(h: dict) -> str:
         name = h["product"] if h["shade"] in ("", h["product"]) else f"{h['product']} · {h['shade']}"
@@ -67,7 +69,8 @@ def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabel
     columns = [f"{float(h['camera_azimuth_deg']):g}°" for h in headers[:n_cols]]
     scenes = ", ".join(dict.fromkeys(str(h.get("scene", "")) for h in headers))
     illuminants = ", ".join(dict.fromkeys(str(h.get("illuminant", "")) for h in headers))
-    return SheetLabels(rows, columns, f"{scenes} · {illuminants} · {datetime.date.today().isoformat()}")
+    header = f"{scenes} · {illuminants} · {datetime.date.today().isoformat()}"
+    return SheetLabels(rows, columns, header, [row_label(h) for h in headers])
 
 
 def write_contact_sheet(
@@ -79,13 +82,15 @@ def write_contact_sheet(
     column_labels: Sequence[str] | None = None,
     header: str | None = None,
     cell: int = CELL_PIXELS,
+    captions: bool = False,
 ) -> SheetWritten:
     """Lay ``frames`` (EXR, linear, encoded to sRGB; or PNG) out row-major in ``columns`` columns (default: up to 4)
     and write the sheet to ``output`` (PNG) in cells ``cell`` px square.
 
     Labels and header left None come from the frames (:func:`frame_labels`); given labels must match the grid
-    (InputError naming ``--row-labels`` or ``--column-labels``). A frame that cannot be read is an InputError
-    naming it, and nothing is written.
+    (InputError naming ``--row-labels`` or ``--column-labels``). With ``captions`` every cell is labelled under it
+    with its own frame's product and shade, and rows and columns are not labelled unless given (a sheet of one
+    frame per product). A frame that cannot be read is an InputError naming it, and nothing is written.
 
     >>> import tempfile, pathlib, numpy as np
     >>> from renderer.image_io import write_exr
@@ -110,8 +115,9 @@ def write_contact_sheet(
     for path in frames:
         files.regular_file(path, "image")
     labels = frame_labels(frames, n_rows, n_cols)
-    chosen_columns = list(column_labels) if column_labels is not None else labels.columns
-    chosen_rows = list(row_labels) if row_labels is not None else labels.rows
+    default_columns, default_rows = ([""] * n_cols, [""] * n_rows) if captions else (labels.columns, labels.rows)
+    chosen_columns = list(column_labels) if column_labels is not None else default_columns
+    chosen_rows = list(row_labels) if row_labels is not None else default_rows
     for option, given, wanted in (("--column-labels", chosen_columns, n_cols), ("--row-labels", chosen_rows, n_rows)):
         if len(given) != wanted:
             raise InputError(
@@ -125,6 +131,7 @@ def write_contact_sheet(
             grid=(n_rows, n_cols),
             header=labels.header if header is None else header,
             cell_size=(cell, cell),
+            captions=labels.cells if captions else None,
         )
     except FrameError as err:
         raise InputError(err.reason, path=err.path) from None
