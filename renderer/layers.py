@@ -52,15 +52,17 @@ from renderer.uniforms import (
     set_view,
 )
 
-_program: Program | None = None
+_programs: dict[bool, Program] = {}
 
 
-def _layers_program() -> Program:
-    """The layer program, compiled once per process (the context is one per process)."""
-    global _program
-    if _program is None:
-        _program = Program("km_layers.vert", "km_layers.frag")
-    return _program
+def _layers_program(soft_shadows: bool) -> Program:
+    """The layer program, with or without soft shadows (``SOFT_SHADOWS``: llvmpipe runs the PCSS code even where no
+    pixel takes it), each compiled once per process (the context is one per process)."""
+    if soft_shadows not in _programs:
+        _programs[soft_shadows] = Program(
+            "km_layers.vert", "km_layers.frag", defines={"SOFT_SHADOWS": int(soft_shadows)}
+        )
+    return _programs[soft_shadows]
 
 
 def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> np.ndarray:
@@ -231,7 +233,8 @@ class SurfacePass:
         self.environment, self.occlusion = scene.environment, scene.occlusion
         self.normal_map, self.substrate_roughness = scene.normal_map, scene.substrate_roughness
         context.make_current(width, height)
-        self.program = _layers_program()
+        self.soft_shadows = any(light.cast_shadows and light.softness > 0.0 for light in self.lights)
+        self.program = _layers_program(self.soft_shadows)
         self.textures: list[int] = []
         self.raw_depth_sampler = raw_depth_sampler()
         self.shadow_maps: list[ShadowMap] = []
@@ -280,7 +283,7 @@ class SurfacePass:
         program.set_mat4("u_view_projection", self.view_projection)
         program.set_mat4("u_view", self.camera.view_matrix())
         GL.glUniform1i(location(program, "u_split"), int(split))
-        set_lights(program, self.lights, self.casts, self.shadow_matrices, self.shadow_ranges)
+        set_lights(program, self.lights, self.casts, self.shadow_matrices, self.shadow_ranges, self.soft_shadows)
         GL.glUniform1fv(
             location(program, "u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
         )
@@ -289,6 +292,8 @@ class SurfacePass:
         for index in range(MAX_LIGHTS):
             texture = next(shadow_textures) if self.casts[index] else 0
             for unit, name in ((SHADOW_UNIT + index, "u_shadow"), (SHADOW_DEPTH_UNIT + index, "u_shadow_depth")):
+                if name == "u_shadow_depth" and not self.soft_shadows:
+                    continue  # only the soft-shadow program reads the raw depths
                 GL.glUniform1i(location(program, f"{name}{index}"), unit)
                 GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
                 GL.glBindTexture(GL.GL_TEXTURE_2D, texture)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ def _decode(log: bytes | str) -> str:
     return (log.decode(errors="replace") if isinstance(log, bytes) else log).strip()
 
 
-def _compile(path: Path) -> int:
+def _compile(path: Path, defines: Mapping[str, int]) -> int:
     stage = _STAGES.get(path.suffix)
     if stage is None:
         raise ShaderError(f"{path}: unknown shader stage (expected one of {', '.join(_STAGES)})")
@@ -30,6 +31,9 @@ def _compile(path: Path) -> int:
         source = path.read_text(encoding="utf-8")
     except OSError as error:
         raise ShaderError(f"{path}: cannot read shader source: {error}") from error
+    if defines:  # after the #version line, which must come first
+        version, _, rest = source.partition("\n")
+        source = "\n".join([version, *(f"#define {name} {value}" for name, value in defines.items()), rest])
     shader = GL.glCreateShader(stage)
     GL.glShaderSource(shader, source)
     GL.glCompileShader(shader)
@@ -48,14 +52,17 @@ class Program:
     *names
         Shader file names in :data:`SHADER_DIR` (or absolute paths); the stage comes from the suffix
         (``.vert`` or ``.frag``).
+    defines
+        Preprocessor macros (name -> integer value) defined in every stage, after its ``#version`` line: a variant
+        of the program with only the features a scene needs.
     """
 
-    def __init__(self, *names: str) -> None:
+    def __init__(self, *names: str, defines: Mapping[str, int] | None = None) -> None:
         self.paths = [SHADER_DIR / name for name in names]
         shaders: list[int] = []
         try:
             for path in self.paths:
-                shaders.append(_compile(path))
+                shaders.append(_compile(path, defines or {}))
             self.handle = GL.glCreateProgram()
             for shader in shaders:
                 GL.glAttachShader(self.handle, shader)

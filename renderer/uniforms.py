@@ -103,8 +103,14 @@ def set_detail(program: Program, normal_map: NormalMap | None, textures: Sequenc
 
 
 def set_lights(
-    program: Program, lights: Sequence[Light], casts: np.ndarray, shadow_matrices: np.ndarray, ranges: np.ndarray
+    program: Program,
+    lights: Sequence[Light],
+    casts: np.ndarray,
+    shadow_matrices: np.ndarray,
+    ranges: np.ndarray,
+    soft_shadows: bool,
 ) -> None:
+    """The lights' uniforms; the areas' sizes and the shadow frusta's ranges only in the soft-shadow program."""
     is_point = np.zeros(MAX_LIGHTS, dtype=np.int32)
     vectors = np.zeros((MAX_LIGHTS, 3))
     radiance = np.zeros((MAX_LIGHTS, 3))
@@ -123,8 +129,9 @@ def set_lights(
     GL.glUniform3fv(location(program, "u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
     GL.glUniform1fv(location(program, "u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
     GL.glUniform1iv(location(program, "u_light_shadow"), MAX_LIGHTS, casts)
-    GL.glUniform1fv(location(program, "u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
-    GL.glUniform2fv(location(program, "u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
+    if soft_shadows:
+        GL.glUniform1fv(location(program, "u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
+        GL.glUniform2fv(location(program, "u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
     GL.glUniformMatrix4fv(
         location(program, "u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
     )

@@ -609,3 +609,22 @@ def test_without_an_environment_the_frame_is_as_before_and_with_one_the_unlit_si
         x, y = (column + 0.5) * pixel - CAMERA.half_height, CAMERA.half_height - (row + 0.5) * pixel
         normal = np.array([x, y, np.sqrt(100.0 - x * x - y * y)]) / 10.0
         assert studio[row, column, 0] == pytest.approx(studio_irradiance(normal), rel=0.03), (row, column)
+
+
+def test_the_soft_shadow_code_is_compiled_only_into_the_program_that_needs_it():
+    """``defines`` reach the shader: only the SOFT_SHADOWS program reads the shadow maps' raw depths (the PCSS code
+    costs on llvmpipe even where no pixel takes it, so hard lights get a program without it)."""
+    from renderer import context
+    from renderer.context import GL
+    from renderer.program import Program
+
+    with context.lock:
+        context.make_current(8, 8)
+        names = ("km_layers.vert", "km_layers.frag")
+        programs = {soft: Program(*names, defines={"SOFT_SHADOWS": soft}) for soft in (0, 1)}
+        try:
+            found = {soft: GL.glGetUniformLocation(p.handle, "u_shadow_range") >= 0 for soft, p in programs.items()}
+        finally:
+            for p in programs.values():
+                p.release()
+    assert found == {0: False, 1: True}

@@ -278,40 +278,58 @@ const vec2 DISC[16] = vec2[16](
 // distance d_o, then 16 PCF taps over a disc as wide as the penumbra the light casts from there (radius 1 to 64
 // texels), the disc turned per pixel by interleaved gradient noise (Jimenez 2014), which supersampling averages out.
 float shadow_visibility(int light, vec3 position) {
-    if (u_light_shadow[light] == 0) return 1.0;
-    vec4 coordinates = u_shadow_matrix[light] * vec4(position, 1.0);
-    vec3 p = coordinates.xyz / coordinates.w;
-    vec2 texel;
-    if (light == 0) texel = 1.0 / vec2(textureSize(u_shadow0, 0));
-    else if (light == 1) texel = 1.0 / vec2(textureSize(u_shadow1, 0));
-    else if (light == 2) texel = 1.0 / vec2(textureSize(u_shadow2, 0));
-    else texel = 1.0 / vec2(textureSize(u_shadow3, 0));
-    if (u_light_softness[light] <= 0.0) {
-        float lit = 0.0;
-        for (int dy = -1; dy <= 1; ++dy) {
-            for (int dx = -1; dx <= 1; ++dx) lit += shadow_compare(light, vec3(p.xy + vec2(dx, dy) * texel, p.z));
+    // (if/else blocks, no early returns: llvmpipe skips a block no pixel takes but runs the code after a return; and
+    // the PCSS code, compiled only into the SOFT_SHADOWS program (renderer.layers), costs even where no pixel takes it)
+    float visibility = 1.0;
+    if (u_light_shadow[light] != 0) {
+        vec4 coordinates = u_shadow_matrix[light] * vec4(position, 1.0);
+        vec3 p = coordinates.xyz / coordinates.w;
+        vec2 texel;
+        if (light == 0) texel = 1.0 / vec2(textureSize(u_shadow0, 0));
+        else if (light == 1) texel = 1.0 / vec2(textureSize(u_shadow1, 0));
+        else if (light == 2) texel = 1.0 / vec2(textureSize(u_shadow2, 0));
+        else texel = 1.0 / vec2(textureSize(u_shadow3, 0));
+#if SOFT_SHADOWS
+        if (u_light_softness[light] <= 0.0) {
+#else
+        {
+#endif
+            float lit = 0.0;
+            for (int dy = -1; dy <= 1; ++dy) {
+                for (int dx = -1; dx <= 1; ++dx) lit += shadow_compare(light, vec3(p.xy + vec2(dx, dy) * texel, p.z));
+            }
+            visibility = lit / 9.0;
         }
-        return lit / 9.0;
-    }
-    float angle = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
-    mat2 turn = mat2(cos(angle), sin(angle), -sin(angle), cos(angle));
-    float receiver = light_distance(light, p.z);
-    // disc radii (texels): half the penumbra's width
-    float search = clamp(0.5 * penumbra(light, receiver, u_shadow_range[light].x) / u_shadow_texel[light], 1.0, 64.0);
-    float blockers = 0.0;
-    int found = 0;
-    for (int i = 0; i < 16; ++i) {
-        float depth = shadow_depth(light, p.xy + turn * DISC[i] * search * texel);
-        if (depth < p.z) {
-            blockers += light_distance(light, depth);
-            ++found;
+#if SOFT_SHADOWS
+        else {
+            float angle = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
+            mat2 turn = mat2(cos(angle), sin(angle), -sin(angle), cos(angle));
+            float receiver = light_distance(light, p.z);
+            // disc radii (texels): half the penumbra's width
+            float reach = 0.5 * penumbra(light, receiver, u_shadow_range[light].x) / u_shadow_texel[light];
+            float search = clamp(reach, 1.0, 64.0);
+            float blockers = 0.0;
+            int found = 0;
+            for (int i = 0; i < 16; ++i) {
+                float depth = shadow_depth(light, p.xy + turn * DISC[i] * search * texel);
+                if (depth < p.z) {
+                    blockers += light_distance(light, depth);
+                    ++found;
+                }
+            }
+            if (found > 0) {
+                float spread = 0.5 * penumbra(light, receiver, blockers / float(found)) / u_shadow_texel[light];
+                float width = clamp(spread, 1.0, 64.0);
+                float lit = 0.0;
+                for (int i = 0; i < 16; ++i) {
+                    lit += shadow_compare(light, vec3(p.xy + turn * DISC[i] * width * texel, p.z));
+                }
+                visibility = lit / 16.0;
+            }
         }
+#endif
     }
-    if (found == 0) return 1.0;
-    float width = clamp(0.5 * penumbra(light, receiver, blockers / float(found)) / u_shadow_texel[light], 1.0, 64.0);
-    float lit = 0.0;
-    for (int i = 0; i < 16; ++i) lit += shadow_compare(light, vec3(p.xy + turn * DISC[i] * width * texel, p.z));
-    return lit / 16.0;
+    return visibility;
 }
 
 // Beckmann roughness of lobe k: the film's, or the substrate's (from its map where there is one).
@@ -325,23 +343,27 @@ float lobe_m(int k) {
 // detail's tilt scaled by k = exp(-t / u_fill_mm), t the films' total thickness here (a film fills fine lines):
 //   n' = normalize(T d.x k + B d.y k + n d.z).
 vec3 shading_normal(vec3 n) {
-    if (u_use_normal_map == 0) return n;
-    vec3 dp1 = dFdx(v_position);
-    vec3 dp2 = dFdy(v_position);
-    vec2 duv1 = dFdx(v_uv);
-    vec2 duv2 = dFdy(v_uv);
-    vec3 dp2perp = cross(dp2, n);
-    vec3 dp1perp = cross(n, dp1);
-    vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
-    vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
-    float longest = max(dot(t, t), dot(b, b));
-    if (!(longest > 1e-30)) return n;  // uv does not change here: no frame
-    float scale = inversesqrt(longest);
-    vec3 d = texture(u_normal_map, v_uv).xyz;
-    float k = exp(-max(texture(u_film_total, v_uv).r, 0.0) / u_fill_mm);
-    vec3 tilted = (t * scale) * (d.x * k) + (b * scale) * (d.y * k) + n * d.z;
-    float length2 = dot(tilted, tilted);
-    return length2 > 1e-12 ? tilted * inversesqrt(length2) : n;
+    vec3 shaded = n;
+    if (u_use_normal_map == 1) {
+        vec3 dp1 = dFdx(v_position);
+        vec3 dp2 = dFdy(v_position);
+        vec2 duv1 = dFdx(v_uv);
+        vec2 duv2 = dFdy(v_uv);
+        vec3 dp2perp = cross(dp2, n);
+        vec3 dp1perp = cross(n, dp1);
+        vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
+        vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
+        float longest = max(dot(t, t), dot(b, b));
+        if (longest > 1e-30) {  // else uv does not change here: no frame
+            float scale = inversesqrt(longest);
+            vec3 d = texture(u_normal_map, v_uv).xyz;
+            float k = exp(-max(texture(u_film_total, v_uv).r, 0.0) / u_fill_mm);
+            vec3 tilted = (t * scale) * (d.x * k) + (b * scale) * (d.y * k) + n * d.z;
+            float length2 = dot(tilted, tilted);
+            if (length2 > 1e-12) shaded = tilted * inversesqrt(length2);
+        }
+    }
+    return shaded;
 }
 
 // Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of lobe `k` (a film's bottom-up index, or MAX_LAYERS: the substrate).
