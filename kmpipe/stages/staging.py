@@ -10,6 +10,7 @@ product's centre, turned to face the camera's azimuth (it stands still while the
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -72,11 +73,17 @@ def environment(scene: Scene) -> Environment | None:
     return Environment(scene.environment, info.rotation_deg, info.intensity, info.visible)
 
 
+@functools.cache
+def _eye_meshes() -> tuple:
+    """The bundled head's eye meshes, read once per process (every turntable angle and the AO bake share them)."""
+    return tuple(load_mesh(HEAD_DIR / name) for name, _ in EYES)
+
+
 def eyes(scene: Scene, model: np.ndarray) -> tuple[Prop, ...]:
     """The bundled head's eyes (sclera, iris, pupil) turned with it by ``model``; none on any other mesh."""
     if scene.info.scene.mesh != "head":
         return ()
-    return tuple(Prop(load_mesh(HEAD_DIR / name), albedo, model) for name, albedo in EYES)
+    return tuple(Prop(mesh, albedo, model) for mesh, (_, albedo) in zip(_eye_meshes(), EYES, strict=True))
 
 
 def occlusion(scene: Scene) -> np.ndarray:
