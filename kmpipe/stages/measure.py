@@ -510,6 +510,7 @@ def run_session(
         raise InputError(
             f"the instrument session stopped: {err}. {done} of {len(steps)} readings are saved in {folder}; "
             "fix the cause and run the same command with --resume to measure the rest",
+            path=replayed,  # a replayed session's log, which ran out or broke (None for a live port)
             field="--port",
         ) from None
     finally:
