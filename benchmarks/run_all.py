@@ -91,7 +91,7 @@ def _summary(
                 ]
             )
     full = look["look"][0]
-    rows.append([f"the full look at {bench_look.SIZE} x {bench_look.SIZE} (2 x 2 AA), s per frame", "<= 1.0", full[1],
+    rows.append([f"the full look at {bench_look.SIZE} x {bench_look.SIZE} (4 x AA), s per frame", "<= 1.0", full[1],
                  full[5]])  # fmt: skip
     packshot = look["turntable"][0]
     rows.append(["36-frame 512 x 512 packshot turntable, environment + AA: s", "<= 10", packshot[1], packshot[3]])

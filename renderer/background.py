@@ -2,10 +2,11 @@
 rays.
 
 The passes clear their colour target to the flat colour (or black) with alpha 0 and every surface writes alpha 1;
-:func:`fill_background` then replaces the pixels still at alpha 0. A gradient's row y of h (0 at the top) takes
-``top + (bottom - top) s(t)``, t = (y + 1/2) / h, s(t) = 3 t^2 - 2 t^3; a visible environment the radiance along
-each pixel centre's camera ray (:meth:`renderer.environment.Environment.lookup`). Under supersampling the fill runs on
-the fine image, so a silhouette's pixels blend the surface with what is behind it.
+:func:`fill_background` then adds what is behind, weighted by 1 - alpha, to the pixels not wholly covered (alpha 0:
+nothing covers them; between 0 and 1: a multisampled silhouette, :mod:`renderer.multisample`). A gradient's row y of
+h (0 at the top) takes ``top + (bottom - top) s(t)``, t = (y + 1/2) / h, s(t) = 3 t^2 - 2 t^3; a visible environment
+the radiance along each pixel centre's camera ray (:meth:`renderer.environment.Environment.lookup`). Under
+supersampling the fill runs on the fine image, so a silhouette's pixels blend the surface with what is behind it.
 """
 
 from __future__ import annotations
@@ -40,13 +41,14 @@ def camera_rays(scene: Scene) -> np.ndarray:
 
 
 def fill_background(rgba: np.ndarray, scene: Scene) -> np.ndarray:
-    """The frame's linear RGB (h, w, 3) from its RGBA read-back, the pixels of alpha 0 filled as the module says."""
+    """The frame's linear RGB (h, w, 3) from its RGBA read-back, the pixels of alpha < 1 filled as the module says."""
     rgb = rgba[..., :3]
     environment = scene.environment
     gradient = isinstance(scene.background, GradientBackground)
     if not (gradient or (environment is not None and environment.visible)):
         return rgb
-    empty = rgba[..., 3] < 0.5
+    cover = rgba[..., 3]
+    empty = cover < 1.0  # (a multisampled silhouette: partly covered)
     if not empty.any():
         return rgb
     if environment is not None and environment.visible:
@@ -58,5 +60,5 @@ def fill_background(rgba: np.ndarray, scene: Scene) -> np.ndarray:
         top, bottom = (np.asarray(c, dtype=float) for c in (scene.background.top, scene.background.bottom))
         behind = np.broadcast_to(top + (bottom - top) * s, rgb.shape)
     out = rgb.copy()
-    out[empty] = behind[empty]
+    out[empty] = rgb[empty] + (1.0 - cover[empty, None]) * behind[empty]
     return out

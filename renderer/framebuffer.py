@@ -1,4 +1,5 @@
-"""A float framebuffer object: one or more RGBA32F colour textures and a 24-bit depth attachment."""
+"""A float framebuffer object: one or more RGBA32F colour textures and a 24-bit depth attachment, single-sampled or
+multisampled (:mod:`renderer.multisample` resolves the latter)."""
 
 from __future__ import annotations
 
@@ -9,44 +10,53 @@ from renderer.context import GL
 
 class Framebuffer:
     """An offscreen render target of ``width`` x ``height`` pixels holding linear float RGBA in ``targets`` colour
-    attachments (fragment outputs at locations 0 .. targets - 1), sampled linearly and clamped at the edges.
+    attachments (fragment outputs at locations 0 .. targets - 1), sampled linearly and clamped at the edges; with
+    ``samples`` > 1 the attachments are multisample textures of that many samples per pixel (read them back through
+    :func:`renderer.multisample.resolve`, not :meth:`read_rgba`).
 
     Use as a context manager (or call :meth:`release`) to free the GL objects. The current context must stay the
     same from creation to release.
     """
 
-    def __init__(self, width: int, height: int, targets: int = 1) -> None:
-        """Create the colour textures, depth renderbuffer and FBO; sizes in pixels."""
+    def __init__(self, width: int, height: int, targets: int = 1, samples: int = 1) -> None:
+        """Create the colour textures, depth renderbuffer and FBO; sizes in pixels, ``samples`` per pixel."""
         self.width = width
         self.height = height
+        self.samples = samples
+        kind = GL.GL_TEXTURE_2D_MULTISAMPLE if samples > 1 else GL.GL_TEXTURE_2D
         self.colours = [int(t) for t in np.atleast_1d(GL.glGenTextures(targets))]
         for colour in self.colours:
-            GL.glBindTexture(GL.GL_TEXTURE_2D, colour)
-            GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA32F, width, height, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
+            GL.glBindTexture(kind, colour)
+            if samples > 1:  # fixed sample locations, the same in every attachment
+                GL.glTexImage2DMultisample(kind, samples, GL.GL_RGBA32F, width, height, GL.GL_TRUE)
+                continue
+            GL.glTexImage2D(kind, 0, GL.GL_RGBA32F, width, height, 0, GL.GL_RGBA, GL.GL_FLOAT, None)
             for parameter, value in (
                 (GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR),
                 (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
                 (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE),
                 (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
             ):
-                GL.glTexParameteri(GL.GL_TEXTURE_2D, parameter, value)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+                GL.glTexParameteri(kind, parameter, value)
+        GL.glBindTexture(kind, 0)
         self.colour = self.colours[0]
         self.depth = GL.glGenRenderbuffers(1)
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self.depth)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT24, width, height)
+        GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples if samples > 1 else 0,
+                                            GL.GL_DEPTH_COMPONENT24, width, height)  # fmt: skip
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, 0)
         self.fbo = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         for index, colour in enumerate(self.colours):
-            GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + index, GL.GL_TEXTURE_2D, colour, 0)
+            GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + index, kind, colour, 0)
         GL.glDrawBuffers(targets, [GL.GL_COLOR_ATTACHMENT0 + index for index in range(targets)])
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self.depth)
         status = GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
         if status != GL.GL_FRAMEBUFFER_COMPLETE:
             self.release()
-            raise RuntimeError(f"the RGBA32F framebuffer ({width} x {height}) is incomplete: status 0x{status:x}")
+            raise RuntimeError(f"the RGBA32F framebuffer ({width} x {height}, {samples} samples a pixel) is "
+                               f"incomplete: status 0x{status:x}")  # fmt: skip
 
     def bind(self) -> None:
         """Make this the draw and read target and set the viewport to cover it."""
@@ -65,6 +75,8 @@ class Framebuffer:
 
         GL stores rows bottom-up; the rows are flipped so that row 0 is the top of the image.
         """
+        if self.samples > 1:
+            raise ValueError("a multisampled framebuffer is read through renderer.multisample.resolve")
         self.bind()
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0 + target)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 4)

@@ -126,6 +126,11 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 
 
+#: zlib level of the PNGs written: 3 writes a 512 x 512 frame in about a third of the time of the default 6, for files
+#: about 13 % larger (the pixels are the same: PNG is lossless).
+PNG_COMPRESSION = 3
+
+
 def write_png(path: str | Path, rgb: np.ndarray) -> None:
     """Write linear RGB(A) as an 8-bit sRGB PNG: clip to [0, 1], sRGB-encode colour, round to 0..255.
 
@@ -139,6 +144,7 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     height, width, channels = codes.shape
     spec = oiio.ImageSpec(width, height, channels, oiio.UINT8)
     spec.attribute("oiio:ColorSpace", "sRGB")
+    spec.attribute("png:compressionLevel", PNG_COMPRESSION)
     _write(Path(path), codes, spec)
 
 

@@ -26,12 +26,12 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 
-from renderer import context
+from renderer import context, multisample
 from renderer.background import clear_colour, fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.meshes import GpuMesh
-from renderer.program import Program
+from renderer.program import Program, shared_program
 from renderer.scene import MAX_LIGHTS, Light, Scene, supersampled
 from renderer.shadows import MARGIN, ShadowMap, light_camera, shadow_matrix
 from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed
@@ -44,7 +44,6 @@ from renderer.uniforms import (
     SUBSTRATE_UNIT,
     detail_textures,
     environment_textures,
-    location,
     set_detail,
     set_environment,
     set_lights,
@@ -52,17 +51,13 @@ from renderer.uniforms import (
     set_view,
 )
 
-_programs: dict[bool, Program] = {}
 
-
-def _layers_program(soft_shadows: bool) -> Program:
-    """The layer program, with or without soft shadows (``SOFT_SHADOWS``: llvmpipe runs the PCSS code even where no
-    pixel takes it), each compiled once per process (the context is one per process)."""
-    if soft_shadows not in _programs:
-        _programs[soft_shadows] = Program(
-            "km_layers.vert", "km_layers.frag", defines={"SOFT_SHADOWS": int(soft_shadows)}
-        )
-    return _programs[soft_shadows]
+def _layers_program(soft_shadows: bool, layers: int, groups: int, lights: int) -> Program:
+    """The layer program for ``layers`` films of ``groups`` channel groups under ``lights`` lights, with or without
+    soft shadows: each combination its own program, the counts compiled in as constants (llvmpipe runs the code of a
+    branch no pixel takes, and indexes arrays in memory in a loop it cannot unroll)."""
+    defines = {"SOFT_SHADOWS": int(soft_shadows), "LAYER_COUNT": layers, "GROUP_COUNT": groups, "LIGHT_COUNT": lights}
+    return shared_program("km_layers.vert", "km_layers.frag", defines=defines)
 
 
 def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> np.ndarray:
@@ -194,8 +189,9 @@ def render_layers(scene: Scene) -> np.ndarray:
 
 def _render_layers(scene: Scene) -> np.ndarray:
     with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(*scene.resolution) as target:
-        target.clear((*clear_colour(scene), 0.0))
-        surface_pass.draw(target, split=False)
+        with multisample.canvas(target, scene.multisamples) as drawn:
+            drawn.clear((*clear_colour(scene), 0.0))
+            surface_pass.draw(drawn, split=False)
         return fill_background(target.read_rgba(), scene)
 
 
@@ -234,7 +230,9 @@ class SurfacePass:
         self.normal_map, self.substrate_roughness = scene.normal_map, scene.substrate_roughness
         context.make_current(width, height)
         self.soft_shadows = any(light.cast_shadows and light.softness > 0.0 for light in self.lights)
-        self.program = _layers_program(self.soft_shadows)
+        groups = 1 if self.channel is None else -(-self.channel["substrate"].size // 4)
+        self.program = _layers_program(self.soft_shadows, stack.n_layers, groups, len(self.lights))
+        self.props_program = _layers_program(self.soft_shadows, 0, 1, len(self.lights))  # bare RGB substrates
         self.textures: list[int] = []
         self.raw_depth_sampler = raw_depth_sampler()
         self.shadow_maps: list[ShadowMap] = []
@@ -275,51 +273,27 @@ class SurfacePass:
 
         ``split``: the skin pass's three outputs (km_layers.frag), the mesh being skin; else one colour output.
         """
-        program = self.program
         target.bind()
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
-        program.use()
-        program.set_mat4("u_view_projection", self.view_projection)
-        program.set_mat4("u_view", self.camera.view_matrix())
-        GL.glUniform1i(location(program, "u_split"), int(split))
-        set_lights(program, self.lights, self.casts, self.shadow_matrices, self.shadow_ranges, self.soft_shadows)
-        GL.glUniform1fv(
-            location(program, "u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
-        )
-        set_view(program, self.camera)
-        shadow_textures = iter(shadow_map.texture for shadow_map in self.shadow_maps)
-        for index in range(MAX_LIGHTS):
-            texture = next(shadow_textures) if self.casts[index] else 0
-            for unit, name in ((SHADOW_UNIT + index, "u_shadow"), (SHADOW_DEPTH_UNIT + index, "u_shadow_depth")):
-                if name == "u_shadow_depth" and not self.soft_shadows:
-                    continue  # only the soft-shadow program reads the raw depths
-                GL.glUniform1i(location(program, f"{name}{index}"), unit)
-                GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
-                GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
-            GL.glBindSampler(SHADOW_DEPTH_UNIT + index, self.raw_depth_sampler)
-        GL.glActiveTexture(GL.GL_TEXTURE0)  # textures created later bind to unit 0, which the stack rebinds
-        for index in range(MAX_LAYERS):
-            GL.glUniform1i(location(program, f"u_table{index}"), index)
-            GL.glUniform1i(location(program, f"u_map{index}"), MAX_LAYERS + index)
-        GL.glUniform1i(location(program, "u_composite"), COMPOSITE_UNIT)
-        GL.glUniform1i(location(program, "u_substrate_map"), SUBSTRATE_UNIT)
-        set_environment(program, self.environment, self.environment_textures)
         created: list[int] = []
         try:
             # The product (or the skin).
+            program = self._use(self.program, split)
             if self.channel is not None:
                 created += _bind_channel_stack(program, self.channel)
             else:
-                _bind_precomposed(program, self.stack.n_layers, self.textures[0])
+                _bind_precomposed(program, self.textures[0])
             set_specular(program, self.lobes_bottom_up)
-            GL.glUniform1i(location(program, "u_skin"), 1)
+            GL.glUniform1i(program.location("u_skin"), 1)
             set_detail(program, self.normal_map, self.detail_textures)
             _draw(program, self.gpu_meshes[0], self.model)
-            # The props: bare Lambert substrates in RGB.
-            set_specular(program, [])
-            set_detail(program, None, [0, 0, 0])
-            GL.glUniform1i(location(program, "u_skin"), 0)
+            # The props: bare Lambert substrates in RGB, with the program of no films.
+            if self.props:
+                program = self._use(self.props_program, split)
+                set_specular(program, [])
+                set_detail(program, None, [0, 0, 0])
+                GL.glUniform1i(program.location("u_skin"), 0)
             for prop, gpu_mesh, (_, prop_model) in zip(self.props, self.gpu_meshes[1:], self.draws[1:], strict=True):
                 created += _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
                 _draw(program, gpu_mesh, prop_model)
@@ -328,6 +302,37 @@ class SurfacePass:
             _unbind_units()
             if created:
                 GL.glDeleteTextures(len(created), created)
+
+    def _use(self, program: Program, split: bool) -> Program:
+        """Make ``program`` current with everything its draws share: view, lights, shadow maps, environment and the
+        texture units of the tables and maps."""
+        program.use()
+        program.set_mat4("u_view_projection", self.view_projection)
+        program.set_mat4("u_view", self.camera.view_matrix())
+        GL.glUniform1i(program.location("u_split"), int(split))
+        set_lights(program, self.lights, self.casts, self.shadow_matrices, self.shadow_ranges, self.soft_shadows)
+        GL.glUniform1fv(
+            program.location("u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
+        )
+        set_view(program, self.camera)
+        shadow_textures = iter(shadow_map.texture for shadow_map in self.shadow_maps)
+        for index in range(MAX_LIGHTS):
+            texture = next(shadow_textures) if self.casts[index] else 0
+            for unit, name in ((SHADOW_UNIT + index, "u_shadow"), (SHADOW_DEPTH_UNIT + index, "u_shadow_depth")):
+                if name == "u_shadow_depth" and not self.soft_shadows:
+                    continue  # only the soft-shadow program reads the raw depths
+                GL.glUniform1i(program.location(f"{name}{index}"), unit)
+                GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+                GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+            GL.glBindSampler(SHADOW_DEPTH_UNIT + index, self.raw_depth_sampler)
+        GL.glActiveTexture(GL.GL_TEXTURE0)  # textures created later bind to unit 0, which the stack rebinds
+        for index in range(MAX_LAYERS):
+            GL.glUniform1i(program.location(f"u_table{index}"), index)
+            GL.glUniform1i(program.location(f"u_map{index}"), MAX_LAYERS + index)
+        GL.glUniform1i(program.location("u_composite"), COMPOSITE_UNIT)
+        GL.glUniform1i(program.location("u_substrate_map"), SUBSTRATE_UNIT)
+        set_environment(program, self.environment, self.environment_textures)
+        return program
 
     def release(self) -> None:
         """Free the meshes, textures, shadow maps and the sampler."""
@@ -363,11 +368,22 @@ def _draw(program: Program, gpu_mesh: GpuMesh, model: np.ndarray) -> None:
     gpu_mesh.draw()
 
 
-def _bind_precomposed(program: Program, n_layers: int, texture: int) -> None:
-    GL.glUniform1i(location(program, "u_precomposed"), 1)
-    GL.glUniform1i(location(program, "u_layer_count"), n_layers)
+def _bind_precomposed(program: Program, texture: int) -> None:
+    GL.glUniform1i(program.location("u_precomposed"), 1)
     GL.glActiveTexture(GL.GL_TEXTURE0 + COMPOSITE_UNIT)
     GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
+
+
+def _even_axis(x: np.ndarray) -> tuple[float, float]:
+    """(first sample, 1 / spacing) of a thickness axis (mm) whose samples lie within a quarter spacing of an even
+    spacing, so that the shader's segment from the spacing is off by at most one, which it corrects; else (0, 0), and
+    the shader searches the axis."""
+    if x.size < 2:
+        return 0.0, 0.0
+    spacing = (x[-1] - x[0]) / (x.size - 1)
+    if np.max(np.abs(x - (x[0] + spacing * np.arange(x.size)))) > 0.25 * spacing:
+        return 0.0, 0.0
+    return float(x[0]), float(1.0 / spacing)
 
 
 def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
@@ -381,24 +397,25 @@ def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
     to_rgb_rows[:channels] = channel["to_rgb"]
     sample_count = np.ones(MAX_LAYERS, dtype=np.int32)
     use_map = np.zeros(MAX_LAYERS, dtype=np.int32)
+    axes = np.zeros((MAX_LAYERS, 2))
     for index, (x, _, _) in enumerate(arrays):
         sample_count[index] = x.size
         use_map[index] = maps[index] is not None
-    GL.glUniform1i(location(program, "u_precomposed"), 0)
-    GL.glUniform1i(location(program, "u_layer_count"), len(arrays))
-    GL.glUniform1i(location(program, "u_group_count"), groups)
-    GL.glUniform1iv(location(program, "u_sample_count"), MAX_LAYERS, sample_count)
-    GL.glUniform1iv(location(program, "u_use_map"), MAX_LAYERS, use_map)
-    GL.glUniform1fv(location(program, "u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
-    GL.glUniform4fv(location(program, "u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
+        axes[index] = _even_axis(x)
+    GL.glUniform1i(program.location("u_precomposed"), 0)
+    GL.glUniform1iv(program.location("u_sample_count"), MAX_LAYERS, sample_count)
+    GL.glUniform1iv(program.location("u_use_map"), MAX_LAYERS, use_map)
+    GL.glUniform1fv(program.location("u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
+    GL.glUniform2fv(program.location("u_axis"), MAX_LAYERS, axes.astype(np.float32).ravel())
+    GL.glUniform4fv(program.location("u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
     basis_groups = np.zeros((3, 4 * (MAX_CHANNELS // 4)))
     if channel["substrate_map"] is not None:
         basis_groups[:, :channels] = channel["substrate_map"][1]
-    GL.glUniform1i(location(program, "u_use_substrate_map"), int(channel["substrate_map"] is not None))
+    GL.glUniform1i(program.location("u_use_substrate_map"), int(channel["substrate_map"] is not None))
     GL.glUniform4fv(
-        location(program, "u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
+        program.location("u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
     )
-    GL.glUniform3fv(location(program, "u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
+    GL.glUniform3fv(program.location("u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
     # Every texture is created first and bound afterwards: creating one binds it to the active unit, which would
     # unbind what an earlier layer had put there.
     units: list[tuple[int, int]] = []

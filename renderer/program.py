@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -21,6 +22,11 @@ class ShaderError(RuntimeError):
 
 def _decode(log: bytes | str) -> str:
     return (log.decode(errors="replace") if isinstance(log, bytes) else log).strip()
+
+
+def _declared_uniforms(source: str) -> set[str]:
+    """Names of the uniforms a GLSL source declares (arrays by their name, without the brackets)."""
+    return set(re.findall(r"^\s*uniform\s+\w+\s+(\w+)", source, flags=re.MULTILINE))
 
 
 def _compile(path: Path, defines: Mapping[str, int]) -> int:
@@ -59,10 +65,12 @@ class Program:
 
     def __init__(self, *names: str, defines: Mapping[str, int] | None = None) -> None:
         self.paths = [SHADER_DIR / name for name in names]
+        self.declared: set[str] = set()
         shaders: list[int] = []
         try:
             for path in self.paths:
                 shaders.append(_compile(path, defines or {}))
+                self.declared |= _declared_uniforms(path.read_text(encoding="utf-8"))
             self.handle = GL.glCreateProgram()
             for shader in shaders:
                 GL.glAttachShader(self.handle, shader)
@@ -80,27 +88,42 @@ class Program:
         """Make this the current program."""
         GL.glUseProgram(self.handle)
 
-    def _location(self, name: str) -> int:
+    def location(self, name: str) -> int:
+        """The uniform's location; -1 (setting it does nothing) for one the sources declare but this variant of the
+        program does not use (its defines compiled the code that reads it away). ShaderError for a name the sources
+        do not declare."""
         if name not in self._locations:
             location = GL.glGetUniformLocation(self.handle, name)
-            if location < 0:
+            if location < 0 and re.sub(r"\[\d+\]$", "", name) not in self.declared:
                 files = ", ".join(p.name for p in self.paths)
-                raise ShaderError(f"{files}: no active uniform named {name!r}")
+                raise ShaderError(f"{files}: no uniform named {name!r}")
             self._locations[name] = location
         return self._locations[name]
 
     def set_vec3(self, name: str, value: np.ndarray | tuple[float, float, float]) -> None:
         """Set a ``vec3`` uniform of the current program."""
-        GL.glUniform3f(self._location(name), *(float(v) for v in np.asarray(value, dtype=float).reshape(3)))
+        GL.glUniform3f(self.location(name), *(float(v) for v in np.asarray(value, dtype=float).reshape(3)))
 
     def set_mat3(self, name: str, matrix: np.ndarray) -> None:
         """Set a ``mat3`` uniform from a row-major (3, 3) array."""
-        GL.glUniformMatrix3fv(self._location(name), 1, GL.GL_TRUE, np.asarray(matrix, dtype=np.float32))
+        GL.glUniformMatrix3fv(self.location(name), 1, GL.GL_TRUE, np.asarray(matrix, dtype=np.float32))
 
     def set_mat4(self, name: str, matrix: np.ndarray) -> None:
         """Set a ``mat4`` uniform from a row-major (4, 4) array."""
-        GL.glUniformMatrix4fv(self._location(name), 1, GL.GL_TRUE, np.asarray(matrix, dtype=np.float32))
+        GL.glUniformMatrix4fv(self.location(name), 1, GL.GL_TRUE, np.asarray(matrix, dtype=np.float32))
 
     def release(self) -> None:
         """Delete the program."""
         GL.glDeleteProgram(self.handle)
+
+
+_shared: dict[tuple, Program] = {}
+
+
+def shared_program(*names: str, defines: Mapping[str, int] | None = None) -> Program:
+    """The :class:`Program` of these shader files and defines, compiled once per process (the process has one
+    context, :mod:`renderer.context`) and kept for every later pass."""
+    key = (names, tuple(sorted((defines or {}).items())))
+    if key not in _shared:
+        _shared[key] = Program(*names, defines=defines)
+    return _shared[key]

@@ -293,6 +293,9 @@ class Scene:
         Samples per pixel along each side (1 to :data:`MAX_SUPERSAMPLING`): the frame is rendered at ``resolution``
         times this and box-filtered down (:func:`supersampled`), so silhouettes get partial coverage while a region of
         one value keeps that value exactly. 1: one sample per pixel.
+    multisamples
+        Coverage samples per pixel of the surface pass (:mod:`renderer.multisample`: 1, 2 or 4): silhouettes get
+        partial coverage as with supersampling, for about the shading cost of one sample a pixel. 1: none.
     """
 
     mesh: trimesh.Trimesh
@@ -312,6 +315,7 @@ class Scene:
     normal_map: NormalMap | None = None
     substrate_roughness: np.ndarray | None = None
     supersampling: int = 1
+    multisamples: int = 1
 
 
 def supersampled(render: Callable[[Scene], np.ndarray], scene: Scene) -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 
 from renderer.context import GL
 from renderer.meshes import GpuMesh
-from renderer.program import Program
+from renderer.program import Program, shared_program
 from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight
 
 #: Relative widening of the light's frustum beyond the bounding sphere, in size and in depth.
@@ -51,15 +51,10 @@ _BIAS = np.array(
     ]
 )
 
-_program: Program | None = None
-
 
 def _depth_program() -> Program:
-    """The depth-only program, compiled once per process (the context is one per process)."""
-    global _program
-    if _program is None:
-        _program = Program("shadow_depth.vert", "shadow_depth.frag")
-    return _program
+    """The depth-only program."""
+    return shared_program("shadow_depth.vert", "shadow_depth.frag")
 
 
 def _up_for(direction: np.ndarray) -> tuple[float, float, float]:

@@ -29,20 +29,18 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from renderer import context
+from renderer import context, multisample
 from renderer.background import clear_colour, fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer
 from renderer.layers import SurfacePass
-from renderer.program import Program
+from renderer.program import Program, shared_program
 from renderer.scene import Camera, OrthographicCamera, Scattering, Scene, supersampled
 
 #: Variances (mm^2) of the four Gaussians of the skin profile (thesis Table 3.1, Jimenez et al. 2009).
 SKIN_VARIANCES_MM2 = (0.0064, 0.0516, 0.2719, 2.0062)
 #: Their RGB weights W_i (Table 3.1).
 SKIN_WEIGHTS = ((0.2405, 0.4474, 0.6157), (0.1158, 0.3661, 0.3439), (0.1836, 0.1864, 0.0), (0.4600, 0.0, 0.0402))
-
-_blur: Program | None = None
 
 
 def blend_weights(weights: Sequence[Sequence[float]] = SKIN_WEIGHTS) -> np.ndarray:
@@ -53,10 +51,7 @@ def blend_weights(weights: Sequence[Sequence[float]] = SKIN_WEIGHTS) -> np.ndarr
 
 
 def _blur_program() -> Program:
-    global _blur
-    if _blur is None:
-        _blur = Program("fullscreen.vert", "sss_blur.frag")
-    return _blur
+    return shared_program("fullscreen.vert", "sss_blur.frag")
 
 
 def _camera_scale(camera: Camera, height: int) -> tuple[float, bool]:
@@ -131,11 +126,12 @@ def render_skin(scene: Scene) -> np.ndarray:
 def _render_skin(scene: Scene) -> np.ndarray:
     width, height = scene.resolution
     with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(width, height, targets=3) as target:
-        target.bind()
-        for index, value in enumerate(((*clear_colour(scene), 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
-            GL.glClearBufferfv(GL.GL_COLOR, index, np.asarray(value, dtype=np.float32))
-        GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
-        surface_pass.draw(target, split=True)
+        with multisample.canvas(target, scene.multisamples) as drawn:
+            drawn.bind()
+            for index, value in enumerate(((*clear_colour(scene), 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
+                GL.glClearBufferfv(GL.GL_COLOR, index, np.asarray(value, dtype=np.float32))
+            GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
+            surface_pass.draw(drawn, split=True)
         surface = fill_background(target.read_rgba(0), scene)
         if scene.scattering is None:
             return surface + target.read_rgba(1)[..., :3]

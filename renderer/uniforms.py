@@ -29,13 +29,6 @@ DETAIL_UNIT = SHADOW_DEPTH_UNIT + MAX_LIGHTS
 LAST_UNIT = DETAIL_UNIT + 2
 
 
-def location(program: Program, name: str) -> int:
-    location = GL.glGetUniformLocation(program.handle, name)
-    if location < 0:
-        raise RuntimeError(f"km_layers.frag: no active uniform named {name!r}")
-    return location
-
-
 def environment_textures(environment) -> list[int]:
     """Upload the environment's prefiltered irradiance, specular levels and the lobe albedo table (three textures)."""
     maps = prefiltered(environment)
@@ -53,17 +46,17 @@ def environment_textures(environment) -> list[int]:
 
 def set_environment(program: Program, environment, textures: Sequence[int]) -> None:
     """The environment's uniforms and textures (units ENV_UNIT ..), or u_env_on = 0."""
-    GL.glUniform1i(location(program, "u_env_on"), int(environment is not None))
+    GL.glUniform1i(program.location("u_env_on"), int(environment is not None))
     for offset, name in enumerate(("u_env_irradiance", "u_env_specular", "u_env_lobe")):
-        GL.glUniform1i(location(program, name), ENV_UNIT + offset)
+        GL.glUniform1i(program.location(name), ENV_UNIT + offset)
     if environment is None:
         return
     levels = np.zeros(8, dtype=np.float32)
     levels[: len(SPECULAR_LEVELS)] = [m for m, _ in SPECULAR_LEVELS]
-    GL.glUniform1i(location(program, "u_env_level_count"), len(SPECULAR_LEVELS))
-    GL.glUniform1fv(location(program, "u_env_level_m"), 8, levels)
-    GL.glUniform2f(location(program, "u_env_lobe_range"), *np.sqrt(LOBE_M_RANGE))
-    GL.glUniform1f(location(program, "u_env_intensity"), environment.intensity)
+    GL.glUniform1i(program.location("u_env_level_count"), len(SPECULAR_LEVELS))
+    GL.glUniform1fv(program.location("u_env_level_m"), 8, levels)
+    GL.glUniform2f(program.location("u_env_lobe_range"), *np.sqrt(LOBE_M_RANGE))
+    GL.glUniform1f(program.location("u_env_intensity"), environment.intensity)
     program.set_mat3("u_env_rotation", environment.world_to_environment())
     for offset, (target, texture) in enumerate(
         zip((GL.GL_TEXTURE_2D, GL.GL_TEXTURE_2D_ARRAY, GL.GL_TEXTURE_2D), textures, strict=True)
@@ -90,13 +83,13 @@ def detail_textures(normal_map: NormalMap | None, roughness: np.ndarray | None) 
 
 def set_detail(program: Program, normal_map: NormalMap | None, textures: Sequence[int]) -> None:
     """Uniforms and textures of the mesh's fine detail and the substrate's roughness map (units DETAIL_UNIT ..)."""
-    GL.glUniform1i(location(program, "u_use_normal_map"), int(normal_map is not None))
-    GL.glUniform1i(location(program, "u_use_roughness_map"), int(textures[2] != 0))
-    GL.glUniform1f(location(program, "u_fill_mm"), FILL_MM if normal_map is None else normal_map.fill_mm)
-    GL.glUniform1f(location(program, "u_lobe_cover_mm"), LOBE_COVER_MM)
+    GL.glUniform1i(program.location("u_use_normal_map"), int(normal_map is not None))
+    GL.glUniform1i(program.location("u_use_roughness_map"), int(textures[2] != 0))
+    GL.glUniform1f(program.location("u_fill_mm"), FILL_MM if normal_map is None else normal_map.fill_mm)
+    GL.glUniform1f(program.location("u_lobe_cover_mm"), LOBE_COVER_MM)
     for offset, (name, texture) in enumerate(zip(("u_normal_map", "u_film_total", "u_roughness_map"), textures,
                                                  strict=True)):  # fmt: skip
-        GL.glUniform1i(location(program, name), DETAIL_UNIT + offset)
+        GL.glUniform1i(program.location(name), DETAIL_UNIT + offset)
         GL.glActiveTexture(GL.GL_TEXTURE0 + DETAIL_UNIT + offset)
         GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
     GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -123,24 +116,23 @@ def set_lights(
             is_point[index], vectors[index], reference[index] = 1, light.position, light.reference_distance_mm
         else:
             vectors[index] = light.to_light()
-    GL.glUniform1i(location(program, "u_light_count"), len(lights))
-    GL.glUniform1iv(location(program, "u_light_is_point"), MAX_LIGHTS, is_point)
-    GL.glUniform3fv(location(program, "u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
-    GL.glUniform3fv(location(program, "u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
-    GL.glUniform1fv(location(program, "u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
-    GL.glUniform1iv(location(program, "u_light_shadow"), MAX_LIGHTS, casts)
+    GL.glUniform1iv(program.location("u_light_is_point"), MAX_LIGHTS, is_point)
+    GL.glUniform3fv(program.location("u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
+    GL.glUniform3fv(program.location("u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
+    GL.glUniform1fv(program.location("u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
+    GL.glUniform1iv(program.location("u_light_shadow"), MAX_LIGHTS, casts)
     if soft_shadows:
-        GL.glUniform1fv(location(program, "u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
-        GL.glUniform2fv(location(program, "u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
+        GL.glUniform1fv(program.location("u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
+        GL.glUniform2fv(program.location("u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
     GL.glUniformMatrix4fv(
-        location(program, "u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
+        program.location("u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
     )
 
 
 def set_view(program: Program, camera: Camera) -> None:
     """The view direction: constant (towards the camera) for an orthographic camera, else from the eye position."""
     orthographic = isinstance(camera, OrthographicCamera)
-    GL.glUniform1i(location(program, "u_orthographic"), int(orthographic))
+    GL.glUniform1i(program.location("u_orthographic"), int(orthographic))
     if orthographic:
         program.set_vec3("u_view_vector", np.linalg.inv(camera.view_matrix())[:3, 2])
     else:
@@ -156,7 +148,7 @@ def set_specular(program: Program, lobes: Sequence[Specular | None]) -> None:
     for index, lobe in enumerate(lobes):
         if lobe is not None:
             on[index], roughness[index], f0[index] = 1, lobe.roughness, lobe.f0
-    GL.glUniform1i(location(program, "u_any_specular"), int(on.any()))
-    GL.glUniform1iv(location(program, "u_specular_on"), slots, on)
-    GL.glUniform1fv(location(program, "u_roughness"), slots, roughness.astype(np.float32))
-    GL.glUniform1fv(location(program, "u_f0"), slots, f0.astype(np.float32))
+    GL.glUniform1i(program.location("u_any_specular"), int(on.any()))
+    GL.glUniform1iv(program.location("u_specular_on"), slots, on)
+    GL.glUniform1fv(program.location("u_roughness"), slots, roughness.astype(np.float32))
+    GL.glUniform1fv(program.location("u_f0"), slots, f0.astype(np.float32))

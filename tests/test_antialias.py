@@ -1,9 +1,10 @@
-"""Antialiasing by supersampling (renderer.scene.supersampled, a scene's ``[output] antialias``).
+"""Antialiasing by supersampling (renderer.scene.supersampled) and by multisampling (renderer.multisample), and how a
+scene's ``[output] antialias`` and ``antialias_method`` choose (kmpipe.stages.antialiasing).
 
 References, none produced by the code under test: a flat card under a head-on light renders as ``albedo x radiance``
-wherever it lies (Lambert at normal incidence), so with k x k samples a pixel a silhouette crosses can only take
-``j / k^2`` of that value (j of its samples on the card), and a pixel inside takes it exactly; and a box filter keeps
-the image's mean.
+wherever it lies (Lambert at normal incidence), so with n samples a pixel a silhouette crosses can only take
+``j / n`` of that value (j of its samples on the card), and a pixel inside takes it exactly; a box filter keeps
+the image's mean; a disc of radius r covers pi r^2 of the image; a card of known size and uv has texels of known size.
 """
 
 from __future__ import annotations
@@ -16,10 +17,15 @@ import trimesh
 from lambert import lambert
 
 from kmpipe import cli
+from kmpipe.formats.scene import load_scene
+from kmpipe.stages.antialiasing import uv_texel_mm
 from kmpipe.stages.fit import fit_manifests
+from kmpipe.stages.render_plan import plan_scene
 from renderer import meshes
 from renderer.image_io import read_exr
-from renderer.scene import DirectionalLight, OrthographicCamera
+from renderer.scene import DirectionalLight, GradientBackground, OrthographicCamera, Scattering, Scene
+from renderer.skin import render_skin
+from renderer.stack import ChannelStack
 
 ALBEDO = np.array([0.6, 0.45, 0.3])
 RADIANCE = np.array([1.0, 1.0, 1.0])
@@ -64,6 +70,79 @@ def test_inside_a_flat_region_supersampling_changes_nothing_and_the_mean_is_kept
     assert np.allclose(coarse.mean(axis=(0, 1)), detail.mean(axis=(0, 1)), rtol=1e-6)  # the box filter keeps light
 
 
+def test_multisampled_a_pixel_takes_the_share_of_its_4_samples_on_the_card():
+    camera = OrthographicCamera(half_height=10.0)
+    image = lambert(_tilted_card(), camera, HEAD_ON, tuple(ALBEDO), 40, 40, multisamples=4).astype(np.float64)
+    share = image / (ALBEDO * RADIANCE)
+    j = np.rint(share * 4)
+    assert np.allclose(share, j / 4, atol=1e-6)
+    assert np.all(j == j[..., :1])
+    assert set(np.unique(j).astype(int)) == {0, 1, 2, 3, 4}  # every partial coverage occurs along the edges
+    plain = lambert(_tilted_card(), camera, HEAD_ON, tuple(ALBEDO), 40, 40).astype(np.float64)
+    inside = j[..., 0] == 4
+    assert np.array_equal(image[inside], plain[inside])  # bit for bit where the card covers the whole pixel
+
+
+def test_multisampled_coverage_of_a_disc_is_its_area():
+    """A flat disc (a 96-gon) of radius 7 mm in a 20 mm square frame: the image's total share of the disc's value is
+    the polygon's area in pixels, to the sampling error of 4 samples along its rim."""
+    radius, size = 7.0, 64
+    angles = np.linspace(0.0, 2.0 * np.pi, 97)[:-1]
+    rim = np.column_stack([radius * np.cos(angles), radius * np.sin(angles), np.zeros(96)])
+    vertices = np.vstack([[0.0, 0.0, 0.0], rim])
+    faces = np.array([[0, 1 + i, 1 + (i + 1) % 96] for i in range(96)])
+    uv = trimesh.visual.TextureVisuals(uv=0.5 + vertices[:, :2] / 20.0)
+    disc = trimesh.Trimesh(vertices, faces, vertex_normals=np.tile([0.0, 0.0, 1.0], (97, 1)), visual=uv, process=False)
+    camera = OrthographicCamera(half_height=10.0)
+    image = lambert(disc, camera, HEAD_ON, tuple(ALBEDO), size, size, multisamples=4).astype(np.float64)
+    covered = (image / (ALBEDO * RADIANCE))[..., 0].sum()
+    area = 0.5 * 96 * radius**2 * np.sin(2.0 * np.pi / 96) * (size / 20.0) ** 2
+    rim_pixels = 2.0 * np.pi * radius * size / 20.0
+    assert abs(covered - area) < 0.05 * rim_pixels  # a rim pixel is off by at most 1/8 on average
+    plain = lambert(disc, camera, HEAD_ON, tuple(ALBEDO), size, size).astype(np.float64)
+    assert abs(covered - area) < abs((plain / (ALBEDO * RADIANCE))[..., 0].sum() - area) + 1.0
+
+
+def test_multisampled_silhouettes_blend_with_a_gradient_background_by_their_coverage():
+    camera = OrthographicCamera(half_height=10.0)
+    background = GradientBackground(top=(0.2, 0.3, 0.4), bottom=(0.05, 0.05, 0.1))
+    image = lambert(_tilted_card(), camera, HEAD_ON, tuple(ALBEDO), 40, 40, multisamples=4,
+                    background=background).astype(np.float64)  # fmt: skip
+    bare = lambert(_tilted_card(), camera, HEAD_ON, tuple(ALBEDO), 40, 40, multisamples=4).astype(np.float64)
+    t = (np.arange(40) + 0.5) / 40
+    s = (t * t * (3.0 - 2.0 * t))[:, None, None]
+    behind = np.asarray(background.top) + (np.asarray(background.bottom) - np.asarray(background.top)) * s
+    cover = bare[..., :1] / (ALBEDO * RADIANCE)[0]  # the share of each pixel the card covers
+    np.testing.assert_allclose(image, bare + (1.0 - cover) * behind, atol=1e-6)
+
+
+def test_a_uniformly_lit_multisampled_skin_keeps_its_light_under_the_blur_at_its_silhouette():
+    """Skin of one albedo facing the light everywhere: the blur of a uniform light is that light, also in the pixels
+    its rim covers in part, so the blurred frame equals the unblurred one."""
+    camera = OrthographicCamera(half_height=10.0)
+    scene = {"mesh": _tilted_card(), "camera": camera, "lights": [HEAD_ON],
+             "stack": ChannelStack([], [], tuple(ALBEDO)), "resolution": (48, 48), "multisamples": 4}  # fmt: skip
+    blurred = render_skin(Scene(**scene, scattering=Scattering(alpha=1.0, beta=0.0, gradient_clamp=0.001)))
+    plain = render_skin(Scene(**scene))
+    share = plain[..., 0] / (ALBEDO * RADIANCE)[0]
+    assert ((share > 0.1) & (share < 0.9)).sum() > 20  # the rim is partly covered
+    np.testing.assert_allclose(blurred, plain, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("samples", [0, 3, 8])
+def test_a_sample_count_multisampling_cannot_take_is_refused(samples):
+    with pytest.raises(ValueError, match="samples a pixel"):
+        lambert(_tilted_card(), OrthographicCamera(half_height=10.0), HEAD_ON, tuple(ALBEDO), 8, 8,
+                multisamples=samples)  # fmt: skip
+
+
+def test_a_maps_texel_size_is_the_cards_side_over_its_texels():
+    card = meshes.card(30.0, 20.0)  # uv [0, 1]^2 over 30 x 20 mm
+    assert uv_texel_mm(card, np.eye(4), (200, 300)) == pytest.approx(np.sqrt(600.0 / 60000.0), rel=1e-12)
+    doubled = np.diag([2.0, 2.0, 2.0, 1.0])
+    assert uv_texel_mm(card, doubled, (200, 300)) == pytest.approx(2.0 * np.sqrt(600.0 / 60000.0), rel=1e-12)
+
+
 @pytest.fixture(scope="module")
 def material(tmp_path_factory):
     path = tmp_path_factory.mktemp("material") / "F1.json"
@@ -83,13 +162,15 @@ def _scene(folder: Path, material: Path, output: str = "") -> Path:
 
 def test_a_scene_antialiases_by_default_and_says_so(tmp_path, material, capsys):
     assert cli.main(["render", str(_scene(tmp_path, material)), "-o", str(tmp_path / "two"), "--explain"]) == 0
-    assert "antialiasing: 2 x 2 supersampling (4 samples per pixel" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "antialiasing: 4 x multisampling (antialias = 2, the default" in out
+    assert "no map varies the shading inside a triangle" in out
     scene = _scene(tmp_path, material, "[output]\nantialias = 1\n")
     assert cli.main(["render", str(scene), "-o", str(tmp_path / "one"), "--explain"]) == 0
     assert "antialiasing: none" in capsys.readouterr().out
     two, header = read_exr(tmp_path / "two" / "frame_000.exr")
     one, _ = read_exr(tmp_path / "one" / "frame_000.exr")
-    assert header["antialias"] == "2 x 2 supersampling"
+    assert header["antialias"] == "4 x multisampling"
     covered_one, covered_two = (one > 0).any(axis=-1), (two > 0).any(axis=-1)
     assert covered_two.sum() > covered_one.sum()  # the rim's partly covered pixels
     rim = covered_two & ~covered_one
@@ -111,3 +192,38 @@ def test_a_supersampled_frame_too_large_to_render_is_exit_2_naming_the_field(tmp
     assert cli.main(["render", str(scene), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "output.antialias" in err and "12288 px render" in err
+
+
+def test_a_scene_can_ask_for_either_method(tmp_path, material, capsys):
+    scene = _scene(tmp_path, material, '[output]\nantialias_method = "supersample"\n')
+    assert cli.main(["render", str(scene), "-o", str(tmp_path / "ss"), "--explain"]) == 0
+    assert "antialiasing: 2 x 2 supersampling (antialias = 2, the default" in capsys.readouterr().out
+    assert read_exr(tmp_path / "ss" / "frame_000.exr")[1]["antialias"] == "2 x 2 supersampling"
+    scene = _scene(tmp_path, material, "[output]\nantialias = 3\n")
+    assert "multisampling stops at 4 samples a pixel" in plan_scene(load_scene(scene)).explain()
+    scene = _scene(tmp_path, material, '[output]\nantialias = 2\nantialias_method = "multisample"\n')
+    assert "as the scene asks" in plan_scene(load_scene(scene)).explain()
+
+
+def test_multisampling_more_than_4_samples_is_exit_2_naming_the_field(tmp_path, material, capsys):
+    scene = _scene(tmp_path, material, '[output]\nantialias = 3\nantialias_method = "multisample"\n')
+    assert cli.main(["render", str(scene), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "output.antialias_method" in err and "at most 2 x 2" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_planner_supersamples_a_map_finer_than_a_pixel(tmp_path, material):
+    """The sphere at 24 px (about 1 mm a pixel) wearing a 512 x 512 thickness map (about 0.1 mm a texel): one shaded
+    sample a pixel would alias the map, so the planner supersamples; at 4 x 4 texels the map is coarse: multisample."""
+    import cv2
+
+    for side, method in ((512, "supersample"), (4, "multisample")):
+        ramp = np.tile(np.linspace(0, 255, side, dtype=np.uint8), (side, 1))
+        cv2.imwrite(str(tmp_path / "map.png"), np.dstack([ramp, ramp, ramp]))
+        scene = _scene(tmp_path, material)
+        text = scene.read_text().replace('thickness = "20 um"', 'thickness_map = { file = "map.png", max = "20 um" }')
+        scene.write_text(text)
+        plan = plan_scene(load_scene(scene))
+        assert plan.antialiasing == method
+        assert ("finer than a pixel" in plan.explain()) == (method == "supersample")

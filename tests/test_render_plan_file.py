@@ -219,6 +219,7 @@ DAMAGES = {
     "another scene's fields": (_set(("scene_sha256",), "0" * 64), "scene_sha256"),
     "another material file": (_set(("layers", 0, "sha256"), "0" * 64), "layers"),
     "other lights": (_set(("shadow_lights",), [True, False]), "shadow_lights"),
+    "an unknown antialiasing": (_set(("antialiasing",), "fxaa"), "antialiasing"),
 }
 
 
@@ -232,6 +233,15 @@ def test_a_damaged_or_foreign_plan_is_refused_naming_the_field(line, ran, tmp_pa
     with pytest.raises(InputError) as refused:
         read_plan(path, load_scene(line / "compact.toml"))
     assert (refused.value.path, refused.value.field) == (path, field)
+
+
+def test_a_plan_written_before_the_antialiasing_field_reads_as_supersampled(line, ran, tmp_path):
+    """Plans written before multisampling existed supersampled their frames; read back, they still do."""
+    document = plan_document(ran[0], "compact")
+    assert document.pop("antialiasing") in ("multisample", "supersample", "none")
+    path = tmp_path / "plan.json"
+    path.write_text(json.dumps(document), encoding="utf-8")
+    assert read_plan(path, load_scene(line / "compact.toml")).antialiasing == "supersample"
 
 
 @pytest.mark.parametrize("text", ["", "{", '{"format": "kmpipe-render-plan/1", "target_dE": NaN}', "[]"])

@@ -621,7 +621,8 @@ def test_the_soft_shadow_code_is_compiled_only_into_the_program_that_needs_it():
     with context.lock:
         context.make_current(8, 8)
         names = ("km_layers.vert", "km_layers.frag")
-        programs = {soft: Program(*names, defines={"SOFT_SHADOWS": soft}) for soft in (0, 1)}
+        counts = {"LAYER_COUNT": 1, "GROUP_COUNT": 1, "LIGHT_COUNT": 1}
+        programs = {soft: Program(*names, defines={"SOFT_SHADOWS": soft, **counts}) for soft in (0, 1)}
         try:
             found = {soft: GL.glGetUniformLocation(p.handle, "u_shadow_range") >= 0 for soft, p in programs.items()}
         finally:

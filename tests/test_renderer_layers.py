@@ -240,3 +240,17 @@ def test_a_substrate_map_mixes_the_basis_per_uv_and_clamps():
     assert_card_equals(image, reference([table], [0.01], basis[0]) * RADIANCE, left)
     right_substrate = np.clip(0.5 * basis[1] + basis[2], 0.0, 1.0)  # (1.05, 0.9, 0.25) -> red clamped to 1
     assert_card_equals(image, reference([table], [0.01], right_substrate) * RADIANCE, right)
+
+
+EVEN_MM = np.linspace(0.0, 0.048, 17)  # evenly spaced: the shader finds the segment from the spacing
+
+
+@pytest.mark.parametrize("x", [0.0, 0.003, 0.006, 0.0165, np.nextafter(0.018, 0.0), 0.018, 0.0479, 0.048, -0.002, 0.09])
+def test_an_evenly_spaced_table_interpolates_as_np_interp(x):
+    """Samples on an even axis (the planner's tables), looked up at samples, a hair below one, between them and
+    beyond the ends: the linear interpolation of np.interp, the segment found exactly as a search would."""
+    k, s = np.array([8.0, 20.0, 35.0]), np.array([30.0, 55.0, 70.0])
+    axis = EVEN_MM[:, None]
+    table = LayerTable(EVEN_MM, s * axis / (1.0 + (k + s) * axis), np.exp(-k * axis) / (1.0 + s * axis))
+    substrate = np.array([0.55, 0.4, 0.3])
+    assert_card_equals(render([table], [x], substrate), reference([table], [x], substrate) * RADIANCE)

@@ -163,7 +163,7 @@ class LayerInfo(StrictModel):
         return self
 
 
-#: Samples per pixel side when a scene's [output] gives no ``antialias``: 2 x 2 supersampling, clean silhouettes.
+#: Samples per pixel side when a scene's [output] gives no ``antialias``: 2 x 2 (4 samples a pixel), clean silhouettes.
 DEFAULT_ANTIALIAS = 2
 
 
@@ -171,6 +171,8 @@ class OutputInfo(StrictModel):
     tone_map: Literal["none", "reinhard", "aces"] = "none"
     exposure_ev: float = Field(default=0.0, ge=-20.0, le=20.0)
     antialias: int = Field(default=DEFAULT_ANTIALIAS, ge=1, le=MAX_SUPERSAMPLING)  # samples per pixel side
+    # how they are taken (kmpipe.stages.antialiasing): the planner's choice, or multisampling or supersampling
+    antialias_method: Literal["auto", "multisample", "supersample"] = "auto"
     video: list[Literal["mp4", "webp"]] = Field(default=["mp4", "webp"])  # turntable videos (kmpipe.stages.video)
     fps: int = Field(default=24, ge=1, le=120)  # frames per second of the videos
 
@@ -399,6 +401,10 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
     if info.ground is not None and info.backdrop is not None and info.backdrop.kind == "sweep":
         raise InputError("a sweep backdrop has its own floor: give [ground] or a [backdrop] sweep, not both",
                          **where(("backdrop", "kind")))  # fmt: skip
+    if info.output.antialias_method == "multisample" and info.output.antialias > 2:
+        raise InputError(f"is multisample, which takes at most 2 x 2 samples a pixel, but antialias is "
+                         f"{info.output.antialias}: use antialias = 2, or antialias_method = \"supersample\"",
+                         **where(("output", "antialias_method")))  # fmt: skip
     side, samples = max(info.resolution), info.output.antialias
     if side * samples > MAX_RENDER_SIDE:
         raise InputError(f"is {samples}: {samples} x {samples} samples per pixel of a {side} px frame make a "

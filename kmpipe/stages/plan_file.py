@@ -92,6 +92,7 @@ def write_plan(plan: ScenePlan, scene: Scene, path: str | Path) -> None:
         "skin_lobe": None if plan.skin_lobe is None else dataclasses.asdict(plan.skin_lobe),
         "scattering": None if plan.scattering is None else dataclasses.asdict(plan.scattering),
         "ambient_occlusion": plan.ambient_occlusion,
+        "antialiasing": plan.antialiasing,
         "notes": list(plan.notes),
         "explain": plan.explain().split("\n"),
     }
@@ -180,6 +181,7 @@ class _PlanFile(_Strict):
     skin_lobe: _Lobe | None
     scattering: _Scattering | None
     ambient_occlusion: bool
+    antialiasing: Literal["none", "multisample", "supersample"] = "supersample"  # (older plans: supersample)
     notes: list[str]
     explain: list[str]
 
@@ -273,7 +275,7 @@ def _checked(fields: _PlanFile, path: Path) -> ScenePlan:
     lobe = None if fields.skin_lobe is None else Specular(**fields.skin_lobe.model_dump())
     scattering = None if fields.scattering is None else Scattering(**fields.scattering.model_dump())
     plan = ScenePlan(tables, fields.shadow_map_size, tuple(fields.shadow_lights), lobe, scattering, tuple(fields.notes),
-                     fields.ambient_occlusion)  # fmt: skip
+                     fields.ambient_occlusion, fields.antialiasing)  # fmt: skip
     if plan.explain() != "\n".join(fields.explain):
         raise _damaged(path, "explain", "it is not the explanation of the plan's other fields")
     return plan

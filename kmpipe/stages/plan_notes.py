@@ -1,5 +1,5 @@
 """The lines ``kmpipe render --explain`` prints about a scene's per-frame work beyond its tables (what
-:func:`kmpipe.stages.render_plan.plan_scene` decided and why): antialiasing, backdrop, fine detail, environment light
+:func:`kmpipe.stages.render_plan.plan_scene` decided and why): backdrop, fine detail, environment light
 and ambient occlusion, the skin's lobe and scattering."""
 
 from __future__ import annotations
@@ -7,17 +7,6 @@ from __future__ import annotations
 from kmpipe.formats.scene import Scene
 from renderer.scene import Scattering
 from renderer.stack import Specular
-
-
-def antialias_note(scene: Scene) -> str:
-    """What antialiasing the frames get and what it costs (``[output] antialias``)."""
-    k = scene.info.output.antialias
-    width, height = scene.info.resolution
-    if k == 1:
-        return "antialiasing: none (antialias = 1: one sample per pixel, silhouettes are stair-stepped)"
-    given = "antialias" in scene.info.output.model_fields_set
-    return (f"antialiasing: {k} x {k} supersampling ({k * k} samples per pixel, rendered at {width * k} x {height * k} "
-            f"and box-filtered; flat regions keep their exact values){'' if given else ' (the default)'}")  # fmt: skip
 
 
 def detail_note(scene: Scene) -> str:

@@ -26,7 +26,7 @@ from kmpipe.formats import files
 from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
 from kmpipe.formats.scene import Scene, load_scene
 from kmpipe.physics.optical_tables import exact_stack, parse_mode, working_space
-from kmpipe.stages import staging
+from kmpipe.stages import antialiasing, framing, staging
 from kmpipe.stages.render_plan import SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene, scene_reach
 from kmpipe.stages.sheet import write_contact_sheet
 from kmpipe.stages.video import write_turntable_videos
@@ -37,9 +37,6 @@ from renderer.scene import Scene as RendererScene
 from renderer.skin import render_skin
 from renderer.stack import LOBE_COVER_MM, ChannelStack, LayerTable, Precomposed, Specular
 from renderer.tone_map import tone_map
-
-#: Share of the image height the product's bounding sphere fills when the scene gives no camera distance.
-FRAME_FILL = 0.8
 
 
 def renderer_scenes(
@@ -83,7 +80,7 @@ def renderer_scenes(
         "scattering": plan.scattering if scattering else None,
         "props": () if floor is None else (floor,),  # and, on the bundled head, its eyes (staging.eyes)
         "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
-        "supersampling": info.output.antialias,
+        **antialiasing.renderer_fields(plan.antialiasing, info.output.antialias),
         "background": staging.background(scene),
         "environment": staging.environment(scene),
         "occlusion": staging.occlusion(scene) if plan.ambient_occlusion else None,
@@ -193,20 +190,13 @@ def _camera(scene: Scene) -> OrthographicCamera | PerspectiveCamera:
     direction = np.array(
         [math.cos(elevation) * math.sin(azimuth), math.sin(elevation), math.cos(elevation) * math.cos(azimuth)]
     )
-    distance = info.distance_mm
-    if distance is None:  # the bounding sphere fills FRAME_FILL of the image height
-        half_angle = math.radians(info.fov_deg) / 2.0
-        distance = (
-            radius / math.sin(math.atan(FRAME_FILL * math.tan(half_angle)))
-            if info.projection == "perspective"
-            else 3.0 * radius
-        )
+    distance = framing.camera_distance_mm(info, radius)
     eye = tuple(centre + distance * direction)
     reach = scene_reach(scene)
     near = max(distance - 2.0 * reach, 1e-3 * distance)
     far = distance + 2.0 * reach
     if info.projection == "orthographic":
-        return OrthographicCamera(radius / FRAME_FILL, eye=eye, target=tuple(centre), near=near, far=far)
+        return OrthographicCamera(radius / framing.FRAME_FILL, eye=eye, target=tuple(centre), near=near, far=far)
     return PerspectiveCamera(info.fov_deg, eye=eye, target=tuple(centre), near=near, far=far)
 
 
@@ -313,7 +303,7 @@ def render_scene(
         "illuminant": info.scene.illuminant,
         "camera_elevation_deg": float(info.camera.elevation_deg),
         "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
-        "antialias": f"{info.output.antialias} x {info.output.antialias} supersampling",
+        "antialias": antialiasing.describe(plan.antialiasing, info.output.antialias),
     }
     blur = plan.scattering if scattering else None
     header["subsurface_scattering"] = (

@@ -35,6 +35,7 @@ from kmpipe.physics.optical_tables import (
     working_space,
 )
 from kmpipe.stages import plan_notes
+from kmpipe.stages.antialiasing import Method, plan_antialiasing
 from renderer.scene import Scattering
 from renderer.stack import MAX_CHANNELS, SKIN_SPECULAR, Specular
 
@@ -281,6 +282,9 @@ class ScenePlan:
         What the plan decided beyond the tables and why, one line each (see :meth:`explain`).
     ambient_occlusion
         Whether the mesh's ambient occlusion is baked (:mod:`renderer.occlusion`) to darken the environment's light.
+    antialiasing
+        How the frames take their ``[output] antialias`` samples: "none", "multisample" or "supersample"
+        (:mod:`kmpipe.stages.antialiasing`).
     """
 
     tables: RenderPlan
@@ -290,6 +294,7 @@ class ScenePlan:
     scattering: Scattering | None = None
     notes: tuple[str, ...] = field(default=())
     ambient_occlusion: bool = False
+    antialiasing: Method = "supersample"
 
     @property
     def mode(self) -> str:
@@ -410,10 +415,11 @@ def plan_scene(scene: Scene) -> ScenePlan:
     notes += plan_notes.environment_notes(scene, self_shadowing)
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
     notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
-    notes.append(plan_notes.antialias_note(scene))
+    antialiasing = plan_antialiasing(scene, placed_bounds(scene)[1])
+    notes.append(antialiasing.note)
     skin_lobe, scattering = _skin_lobe(scene), _skin_scattering(scene)
     notes += plan_notes.skin_notes(scene, skin_lobe, scattering)
-    return ScenePlan(tables, size, tuple(wanted), skin_lobe, scattering, tuple(notes), occluded)
+    return ScenePlan(tables, size, tuple(wanted), skin_lobe, scattering, tuple(notes), occluded, antialiasing.method)
 
 
 def _check_point_lights(scene: Scene, shadows: list[bool]) -> None:

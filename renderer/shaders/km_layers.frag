@@ -56,6 +56,9 @@
 // Composite texture (precomposed mode; 2-D array over uv): layer 0 the stack's RGB reflectance over the substrate,
 // layer 1 over black, layer 2 the substrate lobe's attenuation, layer 3 + i the attenuation A of film i (bottom-up).
 
+// Compile-time constants, defined by renderer.layers (one program per combination, so that the loops over them unroll
+// and the per-layer arrays stay in registers): LAYER_COUNT (the films, 0 .. MAX_LAYERS), GROUP_COUNT
+// (G = ceil(channels / 4), 1 .. MAX_GROUPS), LIGHT_COUNT (1 .. MAX_LIGHTS), SOFT_SHADOWS (0 or 1).
 #define MAX_LAYERS 4
 #define MAX_GROUPS 8
 #define MAX_CHANNELS 32
@@ -69,11 +72,11 @@ in vec2 v_uv;
 in float v_occlusion;
 in float v_view_depth;
 
-uniform int u_layer_count;                   // number of layers, 0 .. MAX_LAYERS
-uniform int u_group_count;                   // G = ceil(channels / 4), 1 .. MAX_GROUPS
 uniform int u_sample_count[MAX_LAYERS];      // thickness samples per layer table (>= 1)
 uniform int u_use_map[MAX_LAYERS];           // 1: thickness from the layer's map texture; 0: u_thickness
 uniform float u_thickness[MAX_LAYERS];       // uniform layer thickness, mm
+uniform vec2 u_axis[MAX_LAYERS];             // an evenly spaced thickness axis: (first sample, 1 / spacing), mm and
+                                             // 1/mm; spacing unknown (0, 0): the axis is searched
 uniform sampler2D u_table0;                  // optical tables of layers 0 .. 3 (layout above)
 uniform sampler2D u_table1;
 uniform sampler2D u_table2;
@@ -97,7 +100,6 @@ uniform float u_f0[MAX_LAYERS + 1];          // Fresnel reflectance at normal in
 uniform int u_split;                         // 1: skin pass outputs (f_skin, f_depth); 0: f_colour only
 uniform int u_skin;                          // 1: this surface is skin (its substrate light goes to f_skin)
 
-uniform int u_light_count;                   // 0 .. MAX_LIGHTS
 uniform int u_light_is_point[MAX_LIGHTS];    // 0: directional, 1: point
 uniform vec3 u_light_vector[MAX_LIGHTS];     // directional: unit vector towards the light; point: position (mm)
 uniform vec3 u_light_radiance[MAX_LIGHTS];   // E (at the reference distance for a point light)
@@ -156,22 +158,37 @@ vec4 fetch(int layer, ivec2 texel) {
     return texelFetch(u_table3, texel, 0);
 }
 
-// Where thickness x falls in a layer's table of n samples: the segment [j0, j0 + 1] (binary search over the
-// thickness row) and the weight w of sample j0 + 1; clamped at both ends (w = 0 or 1 on the end segment).
+// Where thickness x falls in a layer's table of n samples: the segment [j0, j0 + 1], the last j0 <= n - 2 whose
+// sample is <= x (0 below the first), and the weight w of sample j0 + 1; clamped at both ends (w = 0 or 1 on the end
+// segment). On an evenly spaced axis the segment comes from the spacing and is moved by one where rounding put it
+// off by one (the samples as stored decide, so the segment is the one a search finds); else a binary search.
 void locate(int layer, int n, float x, out int j0, out float w) {
     j0 = 0;
     w = 0.0;
     if (n < 2) return;
-    int row = 2 * u_group_count;
+    int row = 2 * GROUP_COUNT;
     int lo = 0;
-    int hi = n - 1;
-    while (hi - lo > 1) {
-        int mid = (lo + hi) / 2;
-        if (fetch(layer, ivec2(mid, row)).r <= x) lo = mid;
-        else hi = mid;
+    if (u_axis[layer].y > 0.0) {
+        lo = clamp(int(floor((x - u_axis[layer].x) * u_axis[layer].y)), 0, n - 2);
+    } else {
+        int hi = n - 1;
+        while (hi - lo > 1) {
+            int mid = (lo + hi) / 2;
+            if (fetch(layer, ivec2(mid, row)).r <= x) lo = mid;
+            else hi = mid;
+        }
     }
     float x0 = fetch(layer, ivec2(lo, row)).r;
-    float x1 = fetch(layer, ivec2(hi, row)).r;
+    float x1 = fetch(layer, ivec2(lo + 1, row)).r;
+    if (x < x0 && lo > 0) {
+        lo -= 1;
+        x1 = x0;
+        x0 = fetch(layer, ivec2(lo, row)).r;
+    } else if (x >= x1 && lo < n - 2) {
+        lo += 1;
+        x0 = x1;
+        x1 = fetch(layer, ivec2(lo + 1, row)).r;
+    }
     j0 = lo;
     w = clamp((x - x0) / (x1 - x0), 0.0, 1.0);
 }
@@ -182,40 +199,41 @@ vec3 group_to_rgb(vec4 channels, int g) {
 }
 
 // The stack's linear RGB reflectance over the substrate and over black, and the RGB specular attenuation of each film
-// (bottom-up index) and of the substrate (index MAX_LAYERS), composed one channel group at a time: every film's R0 and
+// (bottom-up index) and of the substrate (index MAX_LAYERS), at the films' thicknesses (mm), composed one channel group at a time: every film's R0 and
 // T for the group, bottom-up, then the group's share of the RGB.
-void stack_optics(out vec3 reflectance, out vec3 over_black, out vec3 attenuation[MAX_LAYERS + 1]) {
+void stack_optics(float thickness[MAX_LAYERS], out vec3 reflectance, out vec3 over_black,
+                  out vec3 attenuation[MAX_LAYERS + 1]) {
     for (int layer = 0; layer <= MAX_LAYERS; ++layer) attenuation[layer] = vec3(0.0);
     if (u_precomposed == 1) {
         reflectance = texture(u_composite, vec3(v_uv, 0.0)).rgb;
         over_black = texture(u_composite, vec3(v_uv, 1.0)).rgb;
         attenuation[MAX_LAYERS] = texture(u_composite, vec3(v_uv, 2.0)).rgb;
-        for (int layer = 0; layer < u_layer_count; ++layer) {
+        for (int layer = 0; layer < LAYER_COUNT; ++layer) {
             attenuation[layer] = texture(u_composite, vec3(v_uv, float(layer + 3))).rgb;
         }
         return;
     }
     int j0[MAX_LAYERS];
     float w[MAX_LAYERS];
-    for (int layer = 0; layer < u_layer_count; ++layer) {
-        locate(layer, u_sample_count[layer], layer_thickness(layer), j0[layer], w[layer]);
+    for (int layer = 0; layer < LAYER_COUNT; ++layer) {
+        locate(layer, u_sample_count[layer], thickness[layer], j0[layer], w[layer]);
     }
     reflectance = vec3(0.0);
     over_black = vec3(0.0);
-    for (int g = 0; g < u_group_count; ++g) {
+    vec3 mix_weights = u_use_substrate_map == 1 ? texture(u_substrate_map, v_uv).rgb : vec3(0.0);
+    for (int g = 0; g < GROUP_COUNT; ++g) {
         vec4 ground = u_substrate[g];
         if (u_use_substrate_map == 1) {
-            vec3 w = texture(u_substrate_map, v_uv).rgb;
-            ground = clamp(w.r * u_substrate_basis[g] + w.g * u_substrate_basis[MAX_GROUPS + g]
-                           + w.b * u_substrate_basis[2 * MAX_GROUPS + g], 0.0, 1.0);
+            ground = clamp(mix_weights.r * u_substrate_basis[g] + mix_weights.g * u_substrate_basis[MAX_GROUPS + g]
+                           + mix_weights.b * u_substrate_basis[2 * MAX_GROUPS + g], 0.0, 1.0);
         }
         vec4 black = vec4(0.0);
         vec4 t2[MAX_LAYERS];
-        for (int layer = 0; layer < u_layer_count; ++layer) {
+        for (int layer = 0; layer < LAYER_COUNT; ++layer) {
             int n = u_sample_count[layer];
             int j1 = min(j0[layer] + 1, n - 1);
             vec4 r0 = mix(fetch(layer, ivec2(j0[layer], g)), fetch(layer, ivec2(j1, g)), w[layer]);
-            int gt = g + u_group_count;
+            int gt = g + GROUP_COUNT;
             vec4 t = mix(fetch(layer, ivec2(j0[layer], gt)), fetch(layer, ivec2(j1, gt)), w[layer]);
             // Padding channels (r0 = t = rg = 0) and a lossless white over a white ground (denominator 0) stay finite.
             vec4 denominator = max(vec4(1.0) - r0 * ground, vec4(1e-30));
@@ -229,7 +247,7 @@ void stack_optics(out vec3 reflectance, out vec3 over_black, out vec3 attenuatio
             // Attenuation of film i: product of T^2 over the films above it (the top film: 1 in every channel); the
             // substrate's: over all films.
             vec4 above = vec4(1.0);
-            for (int layer = u_layer_count - 1; layer >= 0; --layer) {
+            for (int layer = LAYER_COUNT - 1; layer >= 0; --layer) {
                 attenuation[layer] += group_to_rgb(above, g);
                 above *= t2[layer];
             }
@@ -332,10 +350,10 @@ float shadow_visibility(int light, vec3 position) {
     return visibility;
 }
 
-// Beckmann roughness of lobe k: the film's, or the substrate's (from its map where there is one).
-float lobe_m(int k) {
-    if (k == MAX_LAYERS && u_use_roughness_map == 1) return max(texture(u_roughness_map, v_uv).r, 0.02);
-    return u_roughness[k];
+// Beckmann roughness of each lobe: the film's, or the substrate's (index MAX_LAYERS; from its map where there is one).
+void lobe_roughness(out float m[MAX_LAYERS + 1]) {
+    for (int k = 0; k < MAX_LAYERS; ++k) m[k] = u_roughness[k];
+    m[MAX_LAYERS] = u_use_roughness_map == 1 ? max(texture(u_roughness_map, v_uv).r, 0.02) : u_roughness[MAX_LAYERS];
 }
 
 // The shading normal: the interpolated normal n tilted by the normal map's detail d in the surface's tangent frame
@@ -366,15 +384,15 @@ vec3 shading_normal(vec3 n) {
     return shaded;
 }
 
-// Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of lobe `k` (a film's bottom-up index, or MAX_LAYERS: the substrate).
-float kelemen(int k, vec3 n, vec3 l, vec3 v) {
+// Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of lobe `k` (a film's bottom-up index, or MAX_LAYERS: the substrate)
+// of roughness m.
+float kelemen(int k, float m, vec3 n, vec3 l, vec3 v) {
     vec3 h_sum = l + v;
     float h_length2 = dot(h_sum, h_sum);  // = 2 (1 + L.V)
     if (h_length2 < 1e-12) return 0.0;
     vec3 h = h_sum * inversesqrt(h_length2);
     float cos_a = dot(n, h);
     if (cos_a <= 0.0) return 0.0;
-    float m = lobe_m(k);
     float m2 = m * m;
     float cos2 = cos_a * cos_a;
     float tan2 = (1.0 - cos2) / cos2;
@@ -390,8 +408,8 @@ vec2 equirect(vec3 d) {
     return vec2(0.5 + atan(e.x, -e.z) / (2.0 * PI), 1.0 - acos(clamp(e.y, -1.0, 1.0)) / PI);
 }
 
-vec3 environment_specular(vec3 r, float m) {
-    vec2 at = equirect(r);
+// The prefiltered environment for roughness m at equirectangular coordinates `at`.
+vec3 environment_specular(vec2 at, float m) {
     int last = u_env_level_count - 1;
     if (m >= u_env_level_m[last]) return textureLod(u_env_specular, vec3(at, float(last)), 0.0).rgb;
     int level = 0;
@@ -401,10 +419,10 @@ vec3 environment_specular(vec3 r, float m) {
                textureLod(u_env_specular, vec3(at, float(level + 1)), 0.0).rgb, w);
 }
 
-// The lobe's directional albedo F0 a + b at mu = cos(view angle) for lobe k.
-float lobe_albedo(int k, float mu) {
+// The lobe's directional albedo F0 a + b at mu = cos(view angle) for lobe k of roughness m.
+float lobe_albedo(int k, float m, float mu) {
     vec2 size = vec2(textureSize(u_env_lobe, 0));
-    float s = clamp((sqrt(lobe_m(k)) - u_env_lobe_range.x) / (u_env_lobe_range.y - u_env_lobe_range.x), 0.0, 1.0);
+    float s = clamp((sqrt(m) - u_env_lobe_range.x) / (u_env_lobe_range.y - u_env_lobe_range.x), 0.0, 1.0);
     vec2 at = (vec2(mu, s) * (size - 1.0) + 0.5) / size;
     vec2 ab = textureLod(u_env_lobe, at, 0.0).rg;
     return u_f0[k] * ab.x + ab.y;
@@ -414,12 +432,19 @@ void main() {
     vec3 reflectance;
     vec3 over_black;
     vec3 attenuation[MAX_LAYERS + 1];
-    stack_optics(reflectance, over_black, attenuation);
+    float thickness[MAX_LAYERS];
+    for (int layer = 0; layer < MAX_LAYERS; ++layer) {
+        thickness[layer] = 0.0;
+        if (u_precomposed == 0 && layer < LAYER_COUNT) thickness[layer] = layer_thickness(layer);
+    }
+    stack_optics(thickness, reflectance, over_black, attenuation);
     if (u_precomposed == 0) {  // (precomposed stacks come with their films' cover applied)
-        for (int layer = 0; layer < u_layer_count; ++layer) {
-            attenuation[layer] *= clamp(layer_thickness(layer) / u_lobe_cover_mm, 0.0, 1.0);
+        for (int layer = 0; layer < LAYER_COUNT; ++layer) {
+            attenuation[layer] *= clamp(thickness[layer] / u_lobe_cover_mm, 0.0, 1.0);
         }
     }
+    float m[MAX_LAYERS + 1];
+    lobe_roughness(m);
     vec3 geometric = normalize(v_normal);
     vec3 n = shading_normal(geometric);
     vec3 v = u_orthographic == 1 ? u_view_vector : normalize(u_view_vector - v_position);
@@ -427,7 +452,7 @@ void main() {
     vec3 surface = split ? over_black : reflectance;
     vec3 colour = vec3(0.0);
     vec3 skin = vec3(0.0);
-    for (int light = 0; light < u_light_count; ++light) {
+    for (int light = 0; light < LIGHT_COUNT; ++light) {
         vec3 l;
         vec3 e = u_light_radiance[light];
         if (u_light_is_point[light] == 1) {
@@ -442,8 +467,8 @@ void main() {
         if (cos_theta <= 0.0) continue;
         vec3 specular = vec3(0.0);
         for (int k = 0; k <= MAX_LAYERS; ++k) {
-            if (u_specular_on[k] == 1 && (k < u_layer_count || k == MAX_LAYERS)) {
-                specular += attenuation[k] * kelemen(k, n, l, v);
+            if (u_specular_on[k] == 1 && (k < LAYER_COUNT || k == MAX_LAYERS)) {
+                specular += attenuation[k] * kelemen(k, m[k], n, l, v);
             }
         }
         // Looked up a little off the surface, along the normal (more at grazing light), so that a curved surface
@@ -460,11 +485,11 @@ void main() {
         colour += irradiance * surface;
         skin += irradiance * (reflectance - over_black);
         if (u_any_specular == 1) {
-            vec3 r = reflect(-v, n);
+            vec2 mirror = equirect(reflect(-v, n));
             float mu = clamp(dot(n, v), 0.0, 1.0);
             for (int k = 0; k <= MAX_LAYERS; ++k) {
-                if (u_specular_on[k] == 1 && (k < u_layer_count || k == MAX_LAYERS)) {
-                    colour += attenuation[k] * lobe_albedo(k, mu) * environment_specular(r, lobe_m(k)) * open_sky;
+                if (u_specular_on[k] == 1 && (k < LAYER_COUNT || k == MAX_LAYERS)) {
+                    colour += attenuation[k] * lobe_albedo(k, m[k], mu) * environment_specular(mirror, m[k]) * open_sky;
                 }
             }
         }

@@ -15,6 +15,10 @@
 // A tap on a pixel that is not skin takes the centre's value instead, so the blur neither bleeds skin light onto the
 // background nor darkens the skin's silhouette; the weights sum to 1, so a uniform region keeps its value.
 // Outside the skin the pass writes its input unchanged.
+// A multisampled frame's silhouette pixel (renderer.multisample) is partly skin: its mask a (0.5 <= a < 1) is the
+// skin's share of the pixel and its light the skin's light times a. It is blurred as skin of light rgb / a (its taps
+// that are not skin take that value), and the result is scaled back by a: the blur neither brightens nor darkens the
+// share of the pixel that is skin. Pixels less than half skin pass unchanged.
 
 in vec2 v_uv;
 
@@ -51,11 +55,12 @@ void main() {
     float d = u_orthographic == 1 ? 1.0 : depth;
     float reach = 3.0 * u_width * u_scale * u_alpha / (d + u_beta * min(gradient, u_clamp));
     vec2 step_uv = u_direction * u_pixel;
+    vec3 own = centre.rgb / centre.a;
     vec3 sum = vec3(0.0);
     for (int k = 0; k < 7; ++k) {
         vec4 tap = texture(u_source, v_uv + float(k - 3) / 3.0 * reach * step_uv);
-        sum += WEIGHTS[k] * (tap.a > 0.999 ? tap.rgb : centre.rgb);  // filtered mask: skin on both texels
+        sum += WEIGHTS[k] * (tap.a > 0.999 ? tap.rgb : own);  // filtered mask: skin on both texels
     }
-    f_colour = vec4(sum, 1.0);
+    f_colour = vec4(sum * centre.a, centre.a);
     f_accumulate = f_colour;
 }
