@@ -244,7 +244,8 @@ class SurfacePass:
             raise
 
     def _prepare(self) -> None:
-        self.gpu_meshes = [GpuMesh(m, self.occlusion if i == 0 else None) for i, (m, _) in enumerate(self.draws)]
+        occlusions = [self.occlusion, *(prop.occlusion for prop in self.props)]
+        self.gpu_meshes = [GpuMesh(m, ao) for (m, _), ao in zip(self.draws, occlusions, strict=True)]
         centre, radius = _world_bounds(self.draws)
         self.shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
         self.shadow_ranges = np.ones((MAX_LIGHTS, 2))

@@ -15,16 +15,20 @@ import trimesh
 from renderer.context import GL
 
 
-def card(width: float, height: float) -> trimesh.Trimesh:
-    """A flat drawdown card: a ``width`` x ``height`` rectangle (mm) centred at the origin in the z = 0 plane.
+def card(width: float, height: float, cells: int = 1) -> trimesh.Trimesh:
+    """A flat drawdown card: a ``width`` x ``height`` rectangle (mm) centred at the origin in the z = 0 plane, in
+    ``cells`` x ``cells`` quads (more carry a per-vertex quantity finely, such as a floor's ambient occlusion).
 
     The front faces +z (counter-clockwise seen from +z); uv (0, 0) is the bottom-left (-x, -y) corner.
     """
-    x, y = width / 2.0, height / 2.0
-    vertices = np.array([[-x, -y, 0.0], [x, -y, 0.0], [x, y, 0.0], [-x, y, 0.0]])
-    faces = np.array([[0, 1, 2], [0, 2, 3]])
-    normals = np.tile([0.0, 0.0, 1.0], (4, 1))
-    uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    s = np.linspace(0.0, 1.0, cells + 1)
+    uu, vv = np.meshgrid(s, s, indexing="xy")
+    uv = np.column_stack([uu.ravel(), vv.ravel()])
+    vertices = np.column_stack([(uv[:, 0] - 0.5) * width, (uv[:, 1] - 0.5) * height, np.zeros(len(uv))])
+    corner = (np.arange(cells)[:, None] * (cells + 1) + np.arange(cells)[None, :]).ravel()
+    right, up = corner + 1, corner + cells + 1
+    faces = np.concatenate([np.column_stack([corner, right, up + 1]), np.column_stack([corner, up + 1, up])])
+    normals = np.tile([0.0, 0.0, 1.0], (len(uv), 1))
     return trimesh.Trimesh(
         vertices, faces, vertex_normals=normals, visual=trimesh.visual.TextureVisuals(uv=uv), process=False
     )
@@ -186,24 +190,27 @@ def cylinder(radius: float, height: float, n_azimuth: int = 128, n_height: int =
 
 
 def sweep(
-    width: float, floor_depth: float, cove_radius: float, wall_height: float, n_cove: int = 32
-) -> trimesh.Trimesh:
+    width: float, floor_depth: float, cove_radius: float, wall_height: float, n_cove: int = 32, n_floor: int = 1,
+    n_across: int = 32,
+) -> trimesh.Trimesh:  # fmt: skip
     """A photo studio's seamless paper sweep (a cyclorama), in mm: a floor that curves up into a wall.
 
     In its own frame (+y up, the camera towards +z): the floor at y = 0 from z = ``floor_depth`` to z = 0, a quarter
     circle of ``cove_radius`` R about (y, z) = (R, 0) up to (R, -R), then the wall at z = -R up to y =
-    ``wall_height``; ``width`` along x, centred on x = 0. Normals face the camera side (up on the floor, +z on the
+    ``wall_height``; ``width`` along x, centred on x = 0; ``n_floor`` rows of quads on the floor, ``n_cove`` on the
+    cove, ``n_across`` columns. Normals face the camera side (up on the floor, +z on the
     wall, towards the circle's centre on the cove), exact per vertex; uv = (x / width + 1/2, arc length / total).
     """
     if not (width > 0.0 and floor_depth > 0.0 and cove_radius > 0.0 and wall_height > cove_radius):
         raise ValueError("a sweep needs width, floor depth and cove radius > 0 and a wall higher than the cove")
     t = np.linspace(0.0, np.pi / 2.0, n_cove + 1)
-    z = np.concatenate([[floor_depth], -cove_radius * np.sin(t), [-cove_radius]])
-    y = np.concatenate([[0.0], cove_radius * (1.0 - np.cos(t)), [wall_height]])
-    normal_z = np.concatenate([[0.0], np.sin(t), [1.0]])
-    normal_y = np.concatenate([[1.0], np.cos(t), [0.0]])
+    floor = np.linspace(floor_depth, 0.0, n_floor + 1)[:-1]
+    z = np.concatenate([floor, -cove_radius * np.sin(t), [-cove_radius]])
+    y = np.concatenate([np.zeros(n_floor), cove_radius * (1.0 - np.cos(t)), [wall_height]])
+    normal_z = np.concatenate([np.zeros(n_floor), np.sin(t), [1.0]])
+    normal_y = np.concatenate([np.ones(n_floor), np.cos(t), [0.0]])
     arc = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(z), np.diff(y)))])
-    x = np.linspace(-width / 2.0, width / 2.0, 33)
+    x = np.linspace(-width / 2.0, width / 2.0, n_across + 1)
     xx, row = np.meshgrid(x, np.arange(len(z)), indexing="xy")
     vertices = np.stack([xx, y[row], z[row]], axis=-1).reshape(-1, 3)
     normals = np.stack([np.zeros_like(xx), normal_y[row], normal_z[row]], axis=-1).reshape(-1, 3)

@@ -11,17 +11,23 @@ of a distant light there, ``size`` texels square): the vertex, moved 1.5 texels 
 when it is no deeper than the map there. AO is 1 on a convex mesh (nothing occludes anything), so a white Lambert
 sphere in a uniform environment still renders the environment's radiance (the white furnace test); creases, the
 ears and the eye sockets darken. The normalisation by the discrete cosine sum makes an unoccluded vertex exactly 1.
+
+A floor under a product that turns (:class:`FloorOcclusion`) is baked once, with the product unturned, on a square
+grid of the floor around it; a floor vertex of a frame where the product is turned by a rotation R about the
+vertical takes the value at R^-1 of its position (the product's shadow on the sky turns with it). Beyond the grid,
+and on a floor rising off the plane (a sweep's cove), the value goes smoothly to 1.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
 from renderer import context
-from renderer.meshes import GpuMesh
+from renderer.meshes import GpuMesh, card
 from renderer.scene import DirectionalLight
 from renderer.shadows import MARGIN, ShadowMap, light_view_projection, read_depth, shadow_matrix
 
@@ -77,3 +83,61 @@ def vertex_occlusion(
             for g in gpu:
                 g.release()
     return np.divide(seen, weight_sum, out=np.ones(len(points)), where=weight_sum > 0.0).astype(np.float32)
+
+
+#: Grid cells per side of a floor's baked occlusion, and the share of its half width over which the edge fades to 1.
+FLOOR_CELLS = 64
+FLOOR_EDGE = 0.15
+#: Directions and depth-map size of a floor's bake: more directions than a mesh's (a product's disc of sky seen from
+#: the floor near it is a few dozen of 96, too few for a smooth falloff), smaller maps (the floor is broad).
+FLOOR_DIRECTIONS = 256
+FLOOR_MAP_SIZE = 256
+
+
+@dataclass(frozen=True)
+class FloorOcclusion:
+    """Ambient occlusion of the floor plane y = ``floor_y`` (mm) around an unturned product: ``values`` (n, n) at
+    x = centre_x + extent s_j, z = centre_z + extent s_i with s = linspace(-1, 1, n) (row i, column j)."""
+
+    centre: tuple[float, float]
+    floor_y: float
+    extent: float
+    values: np.ndarray
+
+    def at(self, points: np.ndarray, fade_mm: float) -> np.ndarray:
+        """AO (n,) at points (n, 3) in the unturned product's frame (mm): bilinear on the grid, with 1 - AO scaled
+        by a smoothstep to 0 over the grid's outer :data:`FLOOR_EDGE` and over heights 0 to ``fade_mm`` above the
+        floor."""
+        points = np.asarray(points, dtype=float)
+        n = self.values.shape[0]
+        s = (points[:, [0, 2]] - np.asarray(self.centre)) / self.extent  # (x, z) in [-1, 1] on the grid
+        at = np.clip((s + 1.0) / 2.0 * (n - 1), 0.0, n - 1.0)
+        j0, i0 = (np.minimum(np.floor(at[:, k]).astype(int), n - 2) for k in (0, 1))
+        fx, fz = at[:, 0] - j0, at[:, 1] - i0
+        v = self.values
+        value = ((v[i0, j0] * (1 - fx) + v[i0, j0 + 1] * fx) * (1 - fz)
+                 + (v[i0 + 1, j0] * (1 - fx) + v[i0 + 1, j0 + 1] * fx) * fz)  # fmt: skip
+        edge = _smoothstep((1.0 - np.max(np.abs(s), axis=1)) / FLOOR_EDGE)
+        height = _smoothstep(1.0 - (points[:, 1] - self.floor_y) / fade_mm)
+        return (1.0 - (1.0 - value) * edge * height).astype(np.float32)
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def floor_occlusion(
+    product: Sequence[trimesh.Trimesh], floor_y: float, centre: tuple[float, float], extent: float,
+    cells: int = FLOOR_CELLS, n_directions: int = FLOOR_DIRECTIONS, size: int = FLOOR_MAP_SIZE,
+) -> FloorOcclusion:  # fmt: skip
+    """Bake the occlusion of the floor plane y = ``floor_y`` by the ``product`` meshes (mm, unturned) on a grid of
+    ``cells`` x ``cells`` cells spanning ``extent`` mm each way from ``centre`` = (x, z) (:func:`vertex_occlusion`
+    at its vertices, the floor facing up, ``n_directions`` depth maps of ``size`` texels)."""
+    grid = card(2.0 * extent, 2.0 * extent, cells)
+    up = np.eye(4)
+    up[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y; its +y (rows) to -z
+    up[:3, 3] = (centre[0], floor_y, centre[1])
+    grid.apply_transform(up)
+    values = vertex_occlusion(grid, list(product), n_directions, size).reshape(cells + 1, cells + 1)
+    return FloorOcclusion(centre, floor_y, extent, values[::-1])  # rows from -z to +z

@@ -172,12 +172,15 @@ Light = DirectionalLight | PointLight
 class Prop:
     """A plain diffuse object beside the product (a floor, a stand): Lambert ``albedo`` (linear RGB in [0, 1]).
 
-    It receives light and shadows and casts shadows; ``model`` is its object -> world matrix (identity if None).
+    It receives light and shadows and casts shadows; ``model`` is its object -> world matrix (identity if None);
+    ``occlusion`` its ambient occlusion per vertex in [0, 1], darkening the environment's light (a floor under the
+    product: :class:`renderer.occlusion.FloorOcclusion`; None: 1).
     """
 
     mesh: trimesh.Trimesh
     albedo: tuple[float, float, float]
     model: np.ndarray | None = None
+    occlusion: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

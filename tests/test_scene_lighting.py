@@ -22,7 +22,7 @@ from kmpipe.formats.scene import load_scene, referenced_files
 from kmpipe.stages.fit import fit_manifests
 from kmpipe.stages.plan_file import plan_to_file, read_plan
 from kmpipe.stages.render import renderer_scenes
-from kmpipe.stages.render_plan import plan_scene
+from kmpipe.stages.render_plan import placed_bounds, plan_scene
 from renderer.image_io import read_exr, write_exr, write_map
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -236,6 +236,30 @@ def test_a_sweep_is_a_floor_that_a_convex_product_shadows(tmp_path, material):
     assert plan.shadow_lights == (True,) and any("backdrop sweep" in note for note in plan.notes)
     (frame,) = renderer_scenes(scene, plan, [0.0])
     assert len(frame.props) == 1 and frame.lights[0].cast_shadows
+
+
+@pytest.mark.parametrize("floor", ["[ground]\nreflectance = 0.5", '[backdrop]\nkind = "sweep"'])
+def test_the_floor_under_a_product_in_an_environment_sees_the_sky_the_product_leaves(tmp_path, material, floor):
+    """The sphere (radius r) on a ground or a sweep: a floor vertex d from its contact point has the occlusion of a
+    sphere resting on a plane, 1 - (r / sqrt(d^2 + r^2))^3, turned or not (the sphere is round), and the floor far
+    away sees the whole sky; without an environment the floor has no occlusion."""
+    scene = load_scene(write_scene(tmp_path, material, f"[environment]\n{floor}"))
+    plan = plan_scene(scene)
+    assert any("ambient occlusion: baked once on a 64 x 64 grid" in note for note in plan.notes)
+    for frame in renderer_scenes(scene, plan, [0.0, 70.0]):
+        prop = frame.props[0]
+        placed = np.asarray(prop.mesh.vertices) @ prop.model[:3, :3].T + prop.model[:3, 3]
+        centre, radius, _ = placed_bounds(scene)
+        d = np.hypot(placed[:, 0] - centre[0], placed[:, 2] - centre[2])
+        on_floor = np.abs(placed[:, 1] - (centre[1] - radius)) < 1e-6 * radius
+        near = on_floor & (d > 1.3 * radius) & (d < 2.5 * radius)
+        assert near.sum() > 20
+        expected = 1.0 - (radius / np.hypot(d[near], radius)) ** 3
+        np.testing.assert_allclose(prop.occlusion[near], expected, atol=0.03)
+        outside = d > 3.0 * np.sqrt(2.0) * radius  # beyond the baked square (3 radii each way), however it turned
+        assert outside.sum() > 100 and np.all(prop.occlusion[outside] == 1.0)
+    (bare,) = renderer_scenes(scene := load_scene(write_scene(tmp_path, material, floor)), plan_scene(scene), [0.0])
+    assert bare.props[0].occlusion is None
 
 
 def test_a_gradient_backdrop_fills_the_frame_behind_the_product(tmp_path, material, capsys):

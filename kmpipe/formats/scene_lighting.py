@@ -102,6 +102,9 @@ class BackdropInfo(StrictModel):
 #: Reflectance of a sweep when the scene gives none, and a gradient's default colours (linear RGB).
 SWEEP_REFLECTANCE = 0.6
 GRADIENT = ((0.30, 0.30, 0.31), (0.05, 0.05, 0.055))
+#: Half width, in radii of the product's bounding sphere, of the floor (ground or sweep) around the product whose
+#: ambient occlusion is baked (kmpipe.stages.staging.floor_occlusion); beyond it the floor sees the whole sky.
+FLOOR_EXTENT = 3.0
 #: Largest side (pixels) an environment image is kept at: larger ones are area-averaged down (the light needs
 #: 128 x 64; the visible background a little more).
 ENVIRONMENT_SIDE = 2048

@@ -5,6 +5,8 @@ and ambient occlusion, the skin's lobe and scattering."""
 from __future__ import annotations
 
 from kmpipe.formats.scene import Scene
+from kmpipe.formats.scene_lighting import FLOOR_EXTENT
+from renderer.occlusion import FLOOR_CELLS, FLOOR_DIRECTIONS
 from renderer.scene import Scattering
 from renderer.stack import Specular
 
@@ -49,6 +51,12 @@ def environment_notes(scene: Scene, self_shadowing: bool) -> list[str]:
         notes.append("ambient occlusion: baked per vertex (96 directions): the mesh can hide itself from the sky")
     else:
         notes.append(f"ambient occlusion: none (the {scene.info.scene.mesh} mesh is flat or convex)")
+    floor = "ground" if scene.info.ground is not None else "sweep" if (
+        scene.info.backdrop is not None and scene.info.backdrop.kind == "sweep") else None  # fmt: skip
+    if floor is not None:
+        notes.append(f"the {floor}'s ambient occlusion: baked once on a {FLOOR_CELLS} x {FLOOR_CELLS} grid "
+                     f"{FLOOR_EXTENT:g} radii each way under the product ({FLOOR_DIRECTIONS} directions), turned "
+                     "with it each frame: the product hides the floor around it from the sky")  # fmt: skip
     return notes
 
 

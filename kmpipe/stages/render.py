@@ -78,7 +78,6 @@ def renderer_scenes(
         "lobes": lobes,
         "substrate_lobe": plan.skin_lobe,
         "scattering": plan.scattering if scattering else None,
-        "props": () if floor is None else (floor,),  # and, on the bundled head, its eyes (staging.eyes)
         "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
         **antialiasing.renderer_fields(plan.antialiasing, info.output.antialias),
         "background": staging.background(scene),
@@ -88,7 +87,12 @@ def renderer_scenes(
         "substrate_roughness": scene.roughness,
     }
     models = [_turntable_model(scene, angle) for angle in angles_deg]
-    return [RendererScene(model=m, **{**common, "props": common["props"] + staging.eyes(scene, m)}) for m in models]
+    baked = staging.floor_occlusion(scene) if floor is not None else None
+    scenes = []
+    for m in models:
+        floors = () if floor is None else (floor if baked is None else staging.turned_floor(scene, floor, baked, m),)
+        scenes.append(RendererScene(model=m, **{**common, "props": floors + staging.eyes(scene, m)}))
+    return scenes
 
 
 def _surface(scene: Scene, plan: ScenePlan) -> ChannelStack | Precomposed:

@@ -18,17 +18,22 @@ import numpy as np
 
 from kmpipe.formats.manifest import parse_thickness_mm
 from kmpipe.formats.scene import HEAD_DIR, Scene
-from kmpipe.formats.scene_lighting import GRADIENT, SWEEP_REFLECTANCE
+from kmpipe.formats.scene_lighting import FLOOR_EXTENT, GRADIENT, SWEEP_REFLECTANCE
 from kmpipe.stages.render_plan import GROUND_EXTENT, placed_bounds
 from renderer.environment import Environment
 from renderer.meshes import card, sweep
-from renderer.occlusion import vertex_occlusion
+from renderer.occlusion import FloorOcclusion, vertex_occlusion
+from renderer.occlusion import floor_occlusion as bake_floor
 from renderer.products import load_mesh
 from renderer.scene import GradientBackground, NormalMap, Prop
 
 #: A sweep in radii of the product: (width, floor depth in front of the product's centre, gap behind it to the cove,
 #: cove radius, wall height above the floor).
 SWEEP_SIZE = (12.0, 5.0, 1.2, 2.0, 8.0)
+#: Spacing of a floor's vertices (ground or sweep), in radii of the product: they carry its baked ambient occlusion.
+FLOOR_VERTEX_SPACING = 0.1
+#: Height above the floor, in radii of the product, over which a sweep's occlusion fades to 1 as its cove rises.
+FLOOR_FADE = 0.25
 #: The bundled head's eyes: (file in kmpipe.formats.scene.HEAD_DIR, linear-RGB Lambert albedo), drawn as props.
 EYES = (("eyes_sclera.obj", (0.62, 0.58, 0.54)), ("eyes_iris.obj", (0.11, 0.06, 0.03)),
         ("eyes_pupil.obj", (0.01, 0.01, 0.01)))  # fmt: skip
@@ -43,11 +48,14 @@ def floor_prop(scene: Scene) -> Prop | None:
         model = np.eye(4)
         model[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y
         model[:3, 3] = (centre[0], bottom, centre[2])
-        return Prop(card(side, side), (scene.info.ground.reflectance,) * 3, model)
+        cells = round(side / (FLOOR_VERTEX_SPACING * radius))
+        return Prop(card(side, side, cells), (scene.info.ground.reflectance,) * 3, model)
     if backdrop is None or backdrop.kind != "sweep":
         return None
     width, depth, gap, cove, height = (radius * f for f in SWEEP_SIZE)
-    mesh = sweep(width, depth + gap, cove, height)
+    spacing = FLOOR_VERTEX_SPACING * radius
+    mesh = sweep(width, depth + gap, cove, height, n_floor=round((depth + gap) / spacing),
+                 n_across=round(width / spacing))  # fmt: skip
     azimuth = math.radians(scene.info.camera.azimuth_deg)
     c, s = math.cos(azimuth), math.sin(azimuth)
     model = np.eye(4)
@@ -94,6 +102,28 @@ def occlusion(scene: Scene) -> np.ndarray:
     if scene.occlusion_map is None:
         return baked
     return baked * np.clip(at_uv(scene.occlusion_map, np.asarray(scene.mesh.visual.uv)), 0.0, 1.0)
+
+
+def floor_occlusion(scene: Scene) -> FloorOcclusion | None:
+    """The ambient occlusion of the floor (ground or sweep) by the unturned product and its eyes, within
+    :data:`~kmpipe.formats.scene_lighting.FLOOR_EXTENT` radii of its centre; None without an environment light (the
+    only light it darkens) or a floor."""
+    if scene.info.environment is None or floor_prop(scene) is None:
+        return None
+    centre, radius, bottom = placed_bounds(scene)
+    product = [scene.mesh.copy().apply_transform(scene.model)]
+    product += [prop.mesh.copy().apply_transform(prop.model) for prop in eyes(scene, scene.model)]
+    return bake_floor(product, bottom, (float(centre[0]), float(centre[2])), FLOOR_EXTENT * radius)
+
+
+def turned_floor(scene: Scene, floor: Prop, baked: FloorOcclusion, model: np.ndarray) -> Prop:
+    """The floor prop of a frame whose product stands at ``model`` (its turntable matrix), its vertices taking the
+    baked occlusion at their place relative to the product unturned: model_0 model^-1 applied to them."""
+    unturn = scene.model @ np.linalg.inv(model)
+    placed = np.asarray(floor.mesh.vertices, dtype=float) @ floor.model[:3, :3].T + floor.model[:3, 3]
+    relative = placed @ unturn[:3, :3].T + unturn[:3, 3]
+    _, radius, _ = placed_bounds(scene)
+    return Prop(floor.mesh, floor.albedo, floor.model, baked.at(relative, FLOOR_FADE * radius))
 
 
 def at_uv(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
