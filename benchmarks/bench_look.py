@@ -1,10 +1,10 @@
 """Benchmark: the full look on the bundled head, what each pass costs and how much each option changes the frame.
 
 The scene is the demo's face (recipes/scenes/face.toml) at 1024 x 1024: the bundled head with its skin albedo
-texture, normal map and roughness map, F1 + B1 + L1 through the cosmetic map (three mapped layers, the planned mode),
-subsurface scattering, the built-in studio environment with baked ambient occlusion, a key area light (20 degrees,
-soft shadows) and a point fill, 4 samples a pixel as the planner takes them (4 x multisampling: the maps' texels are
-coarser than a pixel). Each option is then turned off (or the
+texture, normal map and roughness map, F1 + B1 + E1 + L1 through the cosmetic maps (four mapped layers, the
+planned mode), subsurface scattering, the built-in studio environment with baked ambient occlusion (the head's and
+the sweep's), a key area light (20 degrees, soft shadows) and a point fill, 4 samples a pixel as the planner takes
+them (4 x multisampling: the maps' texels are coarser than a pixel). Each option is then turned off (or the
 antialiasing changed) one at a time; for each: the median time of a frame (rendered in-process, kmpipe's renderer
 scene drawn by renderer.skin.render_skin, no file writing, after a warm-up) and the Delta E 2000 of the frame against
 the most exact setting (everything on, 3 x 3 supersampling), per pixel over the whole frame (the head and the
@@ -69,10 +69,11 @@ def _delta_e(image: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
 def _folder(folder: Path) -> Path:
     """The face scene at SIZE px with its materials and maps laid out as the demo lays them out."""
     (folder / "face" / "materials").mkdir(parents=True)
-    manifests = [REPO / "recipes" / "samples" / name / "manifest.toml" for name in ("F1", "B1", "L1")]
+    manifests = [REPO / "recipes" / "samples" / name / "manifest.toml" for name in ("F1", "B1", "E1", "L1")]
     fit_manifests(manifests, folder / "face" / "materials")
+    for name in ("head_makeup.png", "head_eyeshadow.png"):
+        (folder / "face" / name).write_bytes((REPO / "recipes" / "scenes" / name).read_bytes())
     os.symlink(REPO / "recipes" / "head", folder / "head")
-    (folder / "face" / "head_makeup.png").write_bytes((REPO / "recipes" / "scenes" / "head_makeup.png").read_bytes())
     text = (REPO / "recipes" / "scenes" / "face.toml").read_text(encoding="utf-8")
     text = text.replace("resolution = [512, 512]", f"resolution = [{SIZE}, {SIZE}]")
     path = folder / "face" / "face.toml"
@@ -189,7 +190,7 @@ def tables(result: dict) -> list[Table]:
             ["setting", "s per frame", "saves, ms", "dE00 vs reference, mean", "dE00, 95th pct", "target (<= 1 s) met"],
             result["look"],
             [
-                "full look: skin albedo texture + normal map + roughness map, F1 + B1 + L1 mapped, subsurface "
+                "full look: skin albedo texture + normal map + roughness map, F1 + B1 + E1 + L1 mapped, subsurface "
                 "scattering, the studio environment with baked ambient occlusion, a 20 degree key (soft shadows) and a "
                 "point fill, 4 x multisampling (as planned); each other row changes one thing",
                 "median of 3 frames after a warm-up, in-process (renderer.skin.render_skin), no file writing; "

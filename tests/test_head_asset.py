@@ -84,3 +84,24 @@ def test_cosmetic_map_is_on_the_face_and_lipstick_on_the_mouth(head):
     assert np.abs(painted[:, 0]).max() < 30.0 and np.all(painted[:, 2] > 70.0)  # the mouth: narrow, at the front
     assert np.all(painted[:, 1] < marks["joint-l-lowerlid"][1] - 40.0)  # well below the eyes
     assert np.all(painted[:, 1] > marks["joint-jaw"][1])  # above the chin
+
+
+def test_eyeshadow_is_on_the_upper_lids_between_the_lashes_and_the_brows(head):
+    """Where head_eyeshadow.png holds half its thickness or more, the head's vertices are upper-lid skin: above the
+    eye's opening (the eye landmark + 3 mm, the lash line), below the brow ridge (+ 16 mm), within about an eye's
+    width of the eye, at the front of the face; and it covers the lid over the eye's centre on both sides."""
+    shadow = read_channel(HEAD.parent / "scenes" / "head_eyeshadow.png", "R")
+    rows, columns = shadow.shape
+    texel = np.clip((head.visual.uv * [columns, rows]).astype(int), 0, [columns - 1, rows - 1])
+    value = shadow[rows - 1 - texel[:, 1], texel[:, 0]]
+    eye_x, eye_y, _ = json.loads((HEAD / "landmarks.json").read_text())["joint-l-eye"]
+    painted = head.vertices[value >= 0.5]
+    assert len(painted) > 20
+    x, y, z = painted.T
+    assert np.all((y > eye_y + 2.0) & (y < eye_y + 16.0))
+    assert np.all((np.abs(x) > eye_x - 16.0) & (np.abs(x) < eye_x + 20.0)) and np.all(z > 45.0)  # outer corner ~47
+    for side in (-1.0, 1.0):
+        lid = (np.abs(head.vertices[:, 0] - side * eye_x) < 4.0) & (np.abs(head.vertices[:, 1] - eye_y - 6.0) < 2.0)
+        lid &= (head.vertices[:, 2] > 60.0) & (head.vertex_normals[:, 2] > 0.5)  # the lid's outer, facing skin
+        assert lid.any() and value[lid].min() > 0.8
+    assert value[head.vertices[:, 1] < eye_y].max() == 0.0  # none below the eyes

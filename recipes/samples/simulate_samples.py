@@ -85,6 +85,12 @@ SAMPLES = {
         "mix": {"QuinacridoneMagenta": 1.0, "DioxazinePurple": 0.1, "PyrroleRed": 0.3},
         "thicknesses_um": (10, 20),
     },
+    "E1": {
+        "product": "Eyeshadow, Lilac Plum (simulated)",
+        "kind": "eyeshadow",
+        "mix": {"TitaniumWhite": 1.0, "DioxazinePurple": 0.5, "QuinacridoneMagenta": 0.35, "BoneBlack": 0.8},
+        "thicknesses_um": (8, 16),
+    },
 }
 
 

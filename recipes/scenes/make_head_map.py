@@ -12,7 +12,8 @@ thickness; zero off the face. 16-bit PNGs stored linearly (renderer.image_io.wri
   out towards the temple;
 - lipstick: the lips, between the mouth line and an upper and a lower lip outline (a Cupid's bow in the upper),
   with a crisp 0.6 mm edge; the mouth line and lips' heights from the midline profile (the lips' two forward peaks);
-- eyeshadow: the upper lids above the lid landmarks, fading up to the brow (sd 6 mm) and out (sd 15 mm).
+- eyeshadow: the upper lids, from the lash line (a 1.5 mm edge) full for 4 mm and fading out by 12 mm above it (below
+  the brow ridge, rising towards the temple), fading in from the inner corner and out 10 to 20 mm outside the eye.
 Run: .venv/bin/python recipes/scenes/make_head_map.py
 """
 
@@ -30,6 +31,9 @@ sys.path.insert(0, str(HEAD))
 from head_texels import lip_outline, smoothstep, texel_points  # noqa: E402  (the head's uv rasteriser, lip outline)
 
 SIZE = 1024
+#: Height (mm) of the lash line, the top of the eye's opening, above the eye's landmark (the bundled head's lids: the
+#: opening spans -3 to +3 mm about it, the upper lid's skin +3 to +14 mm, the brow ridge above).
+LASH_ABOVE_EYE = 3.0
 
 
 def makeup(points: np.ndarray, mesh, marks: dict) -> np.ndarray:
@@ -48,12 +52,15 @@ def makeup(points: np.ndarray, mesh, marks: dict) -> np.ndarray:
             np.exp(-0.5 * ((along / 20.0) ** 2 + (across / 10.0) ** 2)) * (side * x > 0) * smoothstep(30.0, 60.0, z)
         )
     lips = 1.0 - smoothstep(-0.3, 0.3, lip_outline(points, mesh))  # the outline shared with the skin maps
-    lid_y = marks["joint-l-upperlid"][1]
+    lash = eye_y + LASH_ABOVE_EYE
     shadow = np.zeros_like(x)
     for side in (-1.0, 1.0):
-        dx, dy = side * x - eye_x - 3.0, y - lid_y
-        shadow += np.exp(-0.5 * (dx / 15.0) ** 2 - 0.5 * (np.clip(dy, 0.0, None) / 6.0) ** 2) * (side * x > 0)
-        shadow *= np.where(side * x > 0, smoothstep(-4.0, 0.0, dy), 1.0) * (z > 60.0)
+        dx, dy = side * x - eye_x - 2.0, y - lash
+        wing = 0.15 * np.clip(dx, 0.0, None)  # the top edge rises towards the temple
+        rise = smoothstep(-0.5, 1.0, dy) * (1.0 - smoothstep(4.0 + wing, 12.0 + wing, dy))
+        across = smoothstep(-17.0, -9.0, dx) * (1.0 - smoothstep(10.0, 20.0, dx))  # inner corner to outer
+        shadow += rise * across * (side * x > 0)
+    shadow *= smoothstep(40.0, 55.0, z)  # the front of the face (the lids lie at z ~ 76 mm)
     return np.clip(np.stack([foundation, blush, lips, shadow], axis=-1), 0.0, 1.0)
 
 
