@@ -21,7 +21,6 @@ Run alone: ``.venv/bin/python benchmarks/bench_look.py``.
 from __future__ import annotations
 
 import dataclasses
-import os
 import subprocess
 import tempfile
 import time
@@ -29,10 +28,9 @@ from pathlib import Path
 
 import colour
 import numpy as np
-from common import REPO, Table
+from common import REPO, Table, stage_face
 
 from kmpipe.formats.scene import load_scene
-from kmpipe.stages.fit import fit_manifests
 from kmpipe.stages.render import renderer_scenes
 from kmpipe.stages.render_plan import plan_scene
 from renderer import environment as environment_module
@@ -68,14 +66,7 @@ def _delta_e(image: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
 
 def _folder(folder: Path) -> Path:
     """The face scene at SIZE px with its materials and maps laid out as the demo lays them out."""
-    (folder / "face" / "materials").mkdir(parents=True)
-    manifests = [REPO / "recipes" / "samples" / name / "manifest.toml" for name in ("F1", "B1", "E1", "L1")]
-    fit_manifests(manifests, folder / "face" / "materials")
-    for name in ("head_makeup.png", "head_eyeshadow.png"):
-        (folder / "face" / name).write_bytes((REPO / "recipes" / "scenes" / name).read_bytes())
-    os.symlink(REPO / "recipes" / "head", folder / "head")
-    text = (REPO / "recipes" / "scenes" / "face.toml").read_text(encoding="utf-8")
-    text = text.replace("resolution = [512, 512]", f"resolution = [{SIZE}, {SIZE}]")
+    text = stage_face(folder / "face").replace("resolution = [512, 512]", f"resolution = [{SIZE}, {SIZE}]")
     path = folder / "face" / "face.toml"
     path.write_text(text, encoding="utf-8")
     return path

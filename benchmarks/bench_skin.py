@@ -3,8 +3,8 @@
 Two scenes at 512 and 1024 square, each frame rendered with and without scattering (the difference is the cost of
 the eight blur passes and their accumulation):
 
-- "head (masked)": the demo's face (recipes/scenes/face.toml): the built-in head wearing F1, B1 and L1 through the
-  cosmetic map (three layers with thickness maps, bands mode as planned), a shadowing key light and a point fill
+- "head (masked)": the demo's face (recipes/scenes/face.toml): the built-in head wearing F1, B1, E1 and L1 through
+  the cosmetic maps (four layers with thickness maps, bands mode as planned), a shadowing key light and a point fill
   light; skin covers about a third of the frame, and only skin pixels are blurred;
 - "skin fills the frame": the same head seen from 16 cm, a close-up of the face in which every pixel is skin and is
   blurred: what a blur of the full frame costs.
@@ -20,16 +20,14 @@ Run alone: ``.venv/bin/python benchmarks/bench_skin.py``.
 from __future__ import annotations
 
 import re
-import shutil
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from common import REPO, Table
+from common import Table, stage_face
 
 from kmpipe.formats.scene import load_scene
-from kmpipe.stages.fit import fit_manifests
 from kmpipe.stages.render import renderer_scenes
 from kmpipe.stages.render_plan import plan_scene
 from renderer.skin import render_skin
@@ -49,12 +47,7 @@ def _time(render) -> float:
 
 
 def _scenes(folder: Path) -> dict[str, Path]:
-    (folder / "materials").mkdir()
-    manifests = [REPO / "recipes" / "samples" / name / "manifest.toml" for name in ("F1", "B1", "L1")]
-    fit_manifests(manifests, folder / "materials")
-    shutil.copy(REPO / "recipes" / "scenes" / "head_makeup.png", folder)
-    (folder.parent / "head").symlink_to(REPO / "recipes" / "head")  # the skin maps face.toml names (../head/)
-    face = (REPO / "recipes" / "scenes" / "face.toml").read_text(encoding="utf-8")
+    face = stage_face(folder)
     # this table measures the blur: one sample a pixel, no environment or backdrop (bench_look has the full look)
     face = re.sub(r"\[(environment|backdrop)\][^\[]*", "", face).replace("[output]", "[output]\nantialias = 1")
     close_up = face.replace("distance_mm = 780.0", "distance_mm = 160.0")

@@ -276,3 +276,23 @@ def _memory_total() -> str:
     except OSError:
         pass
     return "unknown"
+
+
+def stage_face(folder: Path) -> str:
+    """The demo's face (recipes/scenes/face.toml) laid out in ``folder`` as the demo lays it out: each material it
+    names fitted from its bundled sample into ``folder/materials``, the cosmetic maps it names copied beside it, the
+    bundled head linked as ``folder/../head`` (its skin maps); returns the scene's text."""
+    import tomllib
+
+    from kmpipe.stages.fit import fit_manifests
+
+    scenes = REPO / "recipes" / "scenes"
+    text = (scenes / "face.toml").read_text(encoding="utf-8")
+    layers = tomllib.loads(text)["layer"]
+    (folder / "materials").mkdir(parents=True)
+    names = [Path(layer["material"]).stem for layer in layers]
+    fit_manifests([REPO / "recipes" / "samples" / n / "manifest.toml" for n in names], folder / "materials")
+    for file in {layer["thickness_map"]["file"] for layer in layers if "thickness_map" in layer}:
+        (folder / file).write_bytes((scenes / file).read_bytes())
+    (folder.parent / "head").symlink_to(REPO / "recipes" / "head")
+    return text
