@@ -89,7 +89,7 @@ def run() -> list[list[str]]:
 def tables(rows: list[list[str]]) -> list[Table]:
     return [
         Table(
-            "Makeup on skin: subsurface scattering against the rest of the frame (F1 + B1 + L1 via the cosmetic map)",
+            "Makeup on skin: subsurface scattering against the rest of the frame (F1 + B1 + E1 + L1, cosmetic maps)",
             [
                 "scene",
                 "resolution",

@@ -84,7 +84,7 @@ def _summary(
             seconds = float(r[5]) / 1e3
             rows.append(
                 [
-                    f"frame on skin, 3 layers, shadows, SSS at 512 x 512 ({r[0]}): s",
+                    f"frame on skin, the demo face (4 films), shadows, SSS at 512 x 512 ({r[0]}): s",
                     "< 0.3",
                     f"{seconds:.3f}",
                     "yes" if seconds < bench_skin.TARGET_S else "no",
