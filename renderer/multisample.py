@@ -52,10 +52,10 @@ def resolve(source: Framebuffer, target: Framebuffer) -> None:
         GL.glDisable(GL.GL_BLEND)
         GL.glBindVertexArray(vao)
         program.use()
-        GL.glUniform1i(GL.glGetUniformLocation(program.handle, "u_samples"), source.samples)
-        GL.glUniform1i(GL.glGetUniformLocation(program.handle, "u_targets"), targets)
+        GL.glUniform1i(program.location("u_samples"), source.samples)
+        GL.glUniform1i(program.location("u_targets"), targets)
         for unit in range(MAX_TARGETS):
-            GL.glUniform1i(GL.glGetUniformLocation(program.handle, f"u_source{unit}"), unit)
+            GL.glUniform1i(program.location(f"u_source{unit}"), unit)
             GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
             GL.glBindTexture(GL.GL_TEXTURE_2D_MULTISAMPLE, source.colours[min(unit, targets - 1)])
         GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from scipy import ndimage
 
 from renderer import context
 from renderer.meshes import GpuMesh, card
@@ -97,28 +98,25 @@ FLOOR_MAP_SIZE = 256
 @dataclass(frozen=True)
 class FloorOcclusion:
     """Ambient occlusion of the floor plane y = ``floor_y`` (mm) around an unturned product: ``values`` (n, n) at
-    x = centre_x + extent s_j, z = centre_z + extent s_i with s = linspace(-1, 1, n) (row i, column j)."""
+    x = centre_x + extent s_j, z = centre_z + extent s_i with s = linspace(-1, 1, n) (row i, column j); it fades to
+    1 over heights 0 to ``fade_mm`` above the floor."""
 
     centre: tuple[float, float]
     floor_y: float
     extent: float
     values: np.ndarray
+    fade_mm: float
 
-    def at(self, points: np.ndarray, fade_mm: float) -> np.ndarray:
+    def at(self, points: np.ndarray) -> np.ndarray:
         """AO (n,) at points (n, 3) in the unturned product's frame (mm): bilinear on the grid, with 1 - AO scaled
-        by a smoothstep to 0 over the grid's outer :data:`FLOOR_EDGE` and over heights 0 to ``fade_mm`` above the
-        floor."""
+        by a smoothstep to 0 over the grid's outer :data:`FLOOR_EDGE` and over heights 0 to ``fade_mm``."""
         points = np.asarray(points, dtype=float)
         n = self.values.shape[0]
         s = (points[:, [0, 2]] - np.asarray(self.centre)) / self.extent  # (x, z) in [-1, 1] on the grid
-        at = np.clip((s + 1.0) / 2.0 * (n - 1), 0.0, n - 1.0)
-        j0, i0 = (np.minimum(np.floor(at[:, k]).astype(int), n - 2) for k in (0, 1))
-        fx, fz = at[:, 0] - j0, at[:, 1] - i0
-        v = self.values
-        value = ((v[i0, j0] * (1 - fx) + v[i0, j0 + 1] * fx) * (1 - fz)
-                 + (v[i0 + 1, j0] * (1 - fx) + v[i0 + 1, j0 + 1] * fx) * fz)  # fmt: skip
+        nodes = (s[:, ::-1].T + 1.0) / 2.0 * (n - 1)  # (row from z, column from x), in grid steps
+        value = ndimage.map_coordinates(self.values, nodes, order=1, mode="nearest")
         edge = _smoothstep((1.0 - np.max(np.abs(s), axis=1)) / FLOOR_EDGE)
-        height = _smoothstep(1.0 - (points[:, 1] - self.floor_y) / fade_mm)
+        height = _smoothstep(1.0 - (points[:, 1] - self.floor_y) / self.fade_mm)
         return (1.0 - (1.0 - value) * edge * height).astype(np.float32)
 
 
@@ -128,16 +126,17 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 
 def floor_occlusion(
-    product: Sequence[trimesh.Trimesh], floor_y: float, centre: tuple[float, float], extent: float,
+    product: Sequence[trimesh.Trimesh], floor_y: float, centre: tuple[float, float], extent: float, fade_mm: float,
     cells: int = FLOOR_CELLS, n_directions: int = FLOOR_DIRECTIONS, size: int = FLOOR_MAP_SIZE,
 ) -> FloorOcclusion:  # fmt: skip
     """Bake the occlusion of the floor plane y = ``floor_y`` by the ``product`` meshes (mm, unturned) on a grid of
     ``cells`` x ``cells`` cells spanning ``extent`` mm each way from ``centre`` = (x, z) (:func:`vertex_occlusion`
-    at its vertices, the floor facing up, ``n_directions`` depth maps of ``size`` texels)."""
+    at its vertices, the floor facing up, ``n_directions`` depth maps of ``size`` texels), fading to 1 over
+    ``fade_mm`` above the floor."""
     grid = card(2.0 * extent, 2.0 * extent, cells)
     up = np.eye(4)
     up[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y; its +y (rows) to -z
     up[:3, 3] = (centre[0], floor_y, centre[1])
     grid.apply_transform(up)
     values = vertex_occlusion(grid, list(product), n_directions, size).reshape(cells + 1, cells + 1)
-    return FloorOcclusion(centre, floor_y, extent, values[::-1])  # rows from -z to +z
+    return FloorOcclusion(centre, floor_y, extent, values[::-1], fade_mm)  # rows from -z to +z

@@ -282,24 +282,24 @@ def test_a_sphere_resting_on_the_floor_hides_the_cap_of_sky_it_spans():
     asin(r / D), centre at elevation angle with cos = r / D from the zenith, D = sqrt(d^2 + r^2)) just touches the
     horizon, so the cosine-weighted sky it hides is (r / D)^2 (r / D): AO = 1 - (r / D)^3."""
     r = 10.0
-    baked = floor_occlusion([meshes.sphere(r).apply_translation([0.0, r, 0.0])], 0.0, (0.0, 0.0), 4.0 * r, cells=40)
+    baked = floor_occlusion([meshes.sphere(r).apply_translation([0.0, r, 0.0])], 0.0, (0.0, 0.0), 4.0 * r, r, cells=40)
     for d in (1.2 * r, 1.6 * r, 2.0 * r, 3.0 * r):
         expected = 1.0 - (r / np.hypot(d, r)) ** 3
         for direction in ((1.0, 0.0), (0.0, -1.0), (-0.6, 0.8)):
             point = np.array([[d * direction[0], 0.0, d * direction[1]]])
-            assert baked.at(point, fade_mm=r)[0] == pytest.approx(expected, abs=0.02), (d, direction)
-    assert baked.at(np.array([[0.0, 0.0, 0.0]]), fade_mm=r)[0] < 0.05  # under the sphere: no sky at all
+            assert baked.at(point)[0] == pytest.approx(expected, abs=0.02), (d, direction)
+    assert baked.at(np.array([[0.0, 0.0, 0.0]]))[0] < 0.05  # under the sphere: no sky at all
 
 
 def test_a_baked_floor_is_its_grid_at_its_nodes_and_fades_to_open_sky():
     values = np.linspace(0.2, 0.9, 25).reshape(5, 5)
-    floor = FloorOcclusion((10.0, -5.0), 2.0, 8.0, values)
+    floor = FloorOcclusion((10.0, -5.0), 2.0, 8.0, values, fade_mm=1.0)
     s = np.linspace(-1.0, 1.0, 5)
     # inner nodes (outside the grid's fading rim): exactly their values; row i is z, column j is x
     nodes = np.array([[10.0 + 8.0 * s[j], 2.0, -5.0 + 8.0 * s[i]] for i in (1, 2, 3) for j in (1, 2, 3)])
-    np.testing.assert_allclose(floor.at(nodes, 1.0), [values[i, j] for i in (1, 2, 3) for j in (1, 2, 3)], rtol=1e-6)
+    np.testing.assert_allclose(floor.at(nodes), [values[i, j] for i in (1, 2, 3) for j in (1, 2, 3)], rtol=1e-6)
     beyond = np.array([[10.0 + 9.0, 2.0, -5.0], [10.0, 2.0, -5.0 - 30.0], [10.0, 2.0 + 1.0, -5.0]])  # out, above
-    np.testing.assert_array_equal(floor.at(beyond, 1.0), 1.0)
+    np.testing.assert_array_equal(floor.at(beyond), 1.0)
 
 
 def test_a_card_in_cells_is_the_same_card():

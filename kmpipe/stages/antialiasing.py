@@ -37,10 +37,9 @@ Method = Literal["none", "multisample", "supersample"]
 
 @dataclass(frozen=True)
 class Antialiasing:
-    """The planned antialiasing: ``method`` at ``side`` x ``side`` samples a pixel, and the plan's note on it."""
+    """The planned antialiasing: how the ``[output] antialias`` samples are taken, and the plan's note on it."""
 
     method: Method
-    side: int
     note: str
 
 
@@ -90,7 +89,7 @@ def plan_antialiasing(scene: Scene, radius_mm: float) -> Antialiasing:
     output = scene.info.output
     side, asked = output.antialias, output.antialias_method
     if side == 1:
-        return Antialiasing("none", 1, "antialiasing: none (antialias = 1: one sample per pixel, silhouettes are "
+        return Antialiasing("none", "antialiasing: none (antialias = 1: one sample per pixel, silhouettes are "
                                        "stair-stepped)")  # fmt: skip
     samples = side * side
     default = "" if "antialias" in output.model_fields_set else ", the default"
@@ -102,11 +101,11 @@ def plan_antialiasing(scene: Scene, radius_mm: float) -> Antialiasing:
                    f"samples a pixel, rendered at {width * side} x {height * side} and box-filtered; flat regions "
                    "keep their exact values)")  # fmt: skip
     if asked == "multisample":
-        return Antialiasing("multisample", side, multisample + " -- as the scene asks (antialias_method)")
+        return Antialiasing("multisample", multisample + " -- as the scene asks (antialias_method)")
     if asked == "supersample":
-        return Antialiasing("supersample", side, supersample + " -- as the scene asks (antialias_method)")
+        return Antialiasing("supersample", supersample + " -- as the scene asks (antialias_method)")
     if samples > MULTISAMPLE_LIMIT:
-        return Antialiasing("supersample", side, f"{supersample} -- multisampling stops at {MULTISAMPLE_LIMIT} "
+        return Antialiasing("supersample", f"{supersample} -- multisampling stops at {MULTISAMPLE_LIMIT} "
                                                  "samples a pixel")  # fmt: skip
     pixel = pixel_mm(scene.info.camera, radius_mm, height)
     texels = [(uv_texel_mm(scene.mesh, scene.model, shape), name) for name, shape in _maps(scene)]
@@ -114,7 +113,7 @@ def plan_antialiasing(scene: Scene, radius_mm: float) -> Antialiasing:
     if texels:
         finest, name = min(texels)
         if finest < pixel:
-            return Antialiasing("supersample", side, f"{supersample} -- the {name}'s texels ({finest:.2g} mm) are "
+            return Antialiasing("supersample", f"{supersample} -- the {name}'s texels ({finest:.2g} mm) are "
                                                      f"finer than a pixel ({pixel:.2g} mm on the product): shading "
                                                      "once a pixel would alias them")  # fmt: skip
         why = (f"the finest map (the {name}, {finest:.2g} mm a texel) is coarser than a pixel ({pixel:.2g} mm on the "
@@ -123,4 +122,4 @@ def plan_antialiasing(scene: Scene, radius_mm: float) -> Antialiasing:
         why = "no map varies the shading inside a triangle"
     if any(light.shadows and (light.angle_deg or light.size_mm) for light in scene.info.light):
         why += "; the soft shadows' per-pixel sampling noise is left as it is (supersampling would average it)"
-    return Antialiasing("multisample", side, f"{multisample} -- {why}")
+    return Antialiasing("multisample", f"{multisample} -- {why}")

@@ -34,8 +34,9 @@ def backdrop_note(scene: Scene) -> str:
     return "backdrop: a vertical gradient behind the product (no floor)"
 
 
-def environment_notes(scene: Scene, self_shadowing: bool) -> list[str]:
-    """The environment light and its ambient occlusion, or why there is none."""
+def environment_notes(scene: Scene, self_shadowing: bool, floor: str | None) -> list[str]:
+    """The environment light and its ambient occlusion (the mesh's; the ``floor``'s, "ground" or "backdrop sweep",
+    where there is one), or why there is none."""
     from renderer.environment import IRRADIANCE_SIZE, SPECULAR_LEVELS
 
     info = scene.info.environment
@@ -51,8 +52,6 @@ def environment_notes(scene: Scene, self_shadowing: bool) -> list[str]:
         notes.append("ambient occlusion: baked per vertex (96 directions): the mesh can hide itself from the sky")
     else:
         notes.append(f"ambient occlusion: none (the {scene.info.scene.mesh} mesh is flat or convex)")
-    floor = "ground" if scene.info.ground is not None else "sweep" if (
-        scene.info.backdrop is not None and scene.info.backdrop.kind == "sweep") else None  # fmt: skip
     if floor is not None:
         notes.append(f"the {floor}'s ambient occlusion: baked once on a {FLOOR_CELLS} x {FLOOR_CELLS} grid "
                      f"{FLOOR_EXTENT:g} radii each way under the product ({FLOOR_DIRECTIONS} directions), turned "

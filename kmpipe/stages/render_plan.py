@@ -412,7 +412,7 @@ def plan_scene(scene: Scene) -> ScenePlan:
     notes.append(plan_notes.backdrop_note(scene))
     notes.append(plan_notes.detail_note(scene))
     occluded = scene.info.environment is not None and self_shadowing
-    notes += plan_notes.environment_notes(scene, self_shadowing)
+    notes += plan_notes.environment_notes(scene, self_shadowing, floor)
     lobes = [i + 1 for i, layer in enumerate(scene.info.layer) if layer.specular is not None]
     notes.append(f"specular lobes: layers {', '.join(map(str, lobes))}" if lobes else "specular lobes: none")
     antialiasing = plan_antialiasing(scene, placed_bounds(scene)[1])

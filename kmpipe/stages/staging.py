@@ -105,15 +105,16 @@ def occlusion(scene: Scene) -> np.ndarray:
 
 
 def floor_occlusion(scene: Scene) -> FloorOcclusion | None:
-    """The ambient occlusion of the floor (ground or sweep) by the unturned product and its eyes, within
-    :data:`~kmpipe.formats.scene_lighting.FLOOR_EXTENT` radii of its centre; None without an environment light (the
-    only light it darkens) or a floor."""
-    if scene.info.environment is None or floor_prop(scene) is None:
+    """The ambient occlusion of the floor (the scene's ground or sweep, :func:`floor_prop`) by the unturned product
+    and its eyes, within :data:`~kmpipe.formats.scene_lighting.FLOOR_EXTENT` radii of its centre; None without an
+    environment light (the only light it darkens)."""
+    if scene.info.environment is None:
         return None
     centre, radius, bottom = placed_bounds(scene)
     product = [scene.mesh.copy().apply_transform(scene.model)]
     product += [prop.mesh.copy().apply_transform(prop.model) for prop in eyes(scene, scene.model)]
-    return bake_floor(product, bottom, (float(centre[0]), float(centre[2])), FLOOR_EXTENT * radius)
+    return bake_floor(product, bottom, (float(centre[0]), float(centre[2])), FLOOR_EXTENT * radius,
+                      FLOOR_FADE * radius)  # fmt: skip
 
 
 def turned_floor(scene: Scene, floor: Prop, baked: FloorOcclusion, model: np.ndarray) -> Prop:
@@ -122,8 +123,7 @@ def turned_floor(scene: Scene, floor: Prop, baked: FloorOcclusion, model: np.nda
     unturn = scene.model @ np.linalg.inv(model)
     placed = np.asarray(floor.mesh.vertices, dtype=float) @ floor.model[:3, :3].T + floor.model[:3, 3]
     relative = placed @ unturn[:3, :3].T + unturn[:3, 3]
-    _, radius, _ = placed_bounds(scene)
-    return Prop(floor.mesh, floor.albedo, floor.model, baked.at(relative, FLOOR_FADE * radius))
+    return Prop(floor.mesh, floor.albedo, floor.model, baked.at(relative))
 
 
 def at_uv(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
