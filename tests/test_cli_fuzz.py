@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from kmpipe.cli import main
@@ -291,6 +291,7 @@ def small_recipe(work: Path, material: Path) -> None:
 
 @FUZZ
 @given(breakage=text_breakages)
+@example(breakage=Breakage(kind="token", position=0.875, token='"\\u0000"'))  # (CI's draw: a path with a NUL)
 def test_run_plans_broken_recipes(material, breakage):
     with workspace(lambda work: small_recipe(work, material)) as work:
         breakage.apply(work / "recipe.toml")
@@ -325,6 +326,8 @@ def raw_card(tmp_path_factory):
 
 @FUZZ_SLOW
 @given(target=st.sampled_from(["photo.dng", "layout.toml"]), breakage=breakages)
+# found by a random draw in CI: a RAW that still decodes, its black backing read at a negative reflectance
+@example(target="photo.dng", breakage=Breakage(kind="token", position=0.875, token="-inf"))
 def test_ingest_raw_on_broken_photos_and_layouts(raw_card, target, breakage):
     def setup(work: Path) -> None:
         for name in ("photo.dng", "layout.toml"):

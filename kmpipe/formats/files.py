@@ -65,7 +65,7 @@ def regular_file(path: str | os.PathLike, what: str, *, field: str | None = None
 
     ``what`` says what the file should be (e.g. ``"spectral CSV"``) and picks the limit from :data:`LIMITS`
     unless ``limit`` is given. Refused: a missing file, a folder, anything that is not a regular file (device,
-    FIFO, socket), a file over the limit.
+    FIFO, socket), a file over the limit, a name holding a NUL character.
     """
     path = Path(path)
     limit = LIMITS.get(what, 64 * MiB) if limit is None else limit
@@ -75,6 +75,9 @@ def regular_file(path: str | os.PathLike, what: str, *, field: str | None = None
         raise InputError(f"does not exist; expected a {what} file", path=path, field=field) from None
     except OSError as err:
         raise InputError(f"cannot be read ({err.strerror or err}); expected a {what} file", path=path,
+                         field=field) from None  # fmt: skip
+    except ValueError:  # a name no file can have: the system refuses a NUL character in it
+        raise InputError(f"is not a file name (it holds a NUL character); expected a {what} file", path=path,
                          field=field) from None  # fmt: skip
     if stat.S_ISDIR(info.st_mode):
         raise InputError(f"is a folder; expected a {what} file", path=path, field=field)

@@ -253,6 +253,7 @@ def ingest_raw(
 
     sample_name = safe_name(name or Path(out_dir).resolve().name, field="--name")
     columns: dict[str, np.ndarray] = {}
+    sources: dict[str, list[Path]] = {}  # the photos each column comes from
     lines = [
         "# Written by kmpipe ingest-raw: camera-RGB reflectance of the card's regions.",
         "[sample]",
@@ -262,6 +263,7 @@ def ingest_raw(
     for region in layout.regions:
         if region.role == "backing":
             columns[region.name] = np.mean([reflectance(p, region.name) for p in measured], axis=0)
+            sources[region.name] = [p.photo for p in measured]
             lines += [
                 "[[backing]]",
                 f"name = {_toml_string(region.name)}",
@@ -275,6 +277,7 @@ def ingest_raw(
         for i, photo in enumerate(measured, 1):
             column = region.name if len(measured) == 1 else f"{region.name}_{i}"
             columns[column] = reflectance(photo, region.name)
+            sources[column] = [photo.photo]
             over = region.metadata.get("over")
             film_thickness = region.metadata.get("thickness", thickness)
             if over is None or film_thickness is None:
@@ -303,8 +306,18 @@ def ingest_raw(
         "polarization_factor": f"{polarization_factor:g}",
         "photos": ", ".join(p.photo.name for p in measured),
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
     table = SpectralTable(None, channels, tuple(columns), np.array(list(columns.values())), metadata)
+    try:
+        table.validate_values()
+    except InputError as err:  # the reflectance of a region is impossible: name the photos it was read from
+        photos = sources.get(err.field or "", [p.photo for p in measured])
+        raise InputError(
+            f"{err.message}. Region {err.field!r} of {', '.join(p.name for p in photos)} reads a reflectance no "
+            "card has: a damaged or badly exposed RAW, or a layout whose regions miss the card; nothing was written",
+            path=photos[0] if len(photos) == 1 else None,
+            field=err.field,
+        ) from None
+    out_dir.mkdir(parents=True, exist_ok=True)
     write_spectra_csv(table, out_dir / "reflectance.csv")
     manifest = out_dir / "manifest.toml"
     write_text_atomically(manifest, "\n".join(lines))
