@@ -1,7 +1,12 @@
 """A float framebuffer object: one or more RGBA32F colour textures and a 24-bit depth attachment, single-sampled or
-multisampled (:mod:`renderer.multisample` resolves the latter)."""
+multisampled (:mod:`renderer.multisample` resolves the latter), and a pool of idle ones that passes reuse: on llvmpipe a
+new 1024 x 1024 framebuffer of three targets, multisampled 4 x, costs about 0.15 s (the first touch of its 200 MB),
+every frame again."""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -96,3 +101,33 @@ class Framebuffer:
 
     def __exit__(self, *exc_info: object) -> None:
         self.release()
+
+
+#: Most bytes of idle framebuffers :func:`pooled` keeps for reuse.
+POOL_BYTES = 1 << 30
+_idle: list[Framebuffer] = []  # least recently given back first
+
+
+def _bytes(framebuffer: Framebuffer) -> int:
+    """Bytes of a framebuffer's attachments: RGBA32F colours and a 24-bit depth (stored in 4 bytes) per sample."""
+    return framebuffer.width * framebuffer.height * framebuffer.samples * (16 * len(framebuffer.colours) + 4)
+
+
+@contextmanager
+def pooled(width: int, height: int, targets: int = 1, samples: int = 1) -> Iterator[Framebuffer]:
+    """A :class:`Framebuffer` of this size and layout for the block: an idle one from the pool, or a new one; given
+    back to the pool when the block ends. It holds what its last user left: clear or overwrite what you read.
+
+    The pool keeps at most :data:`POOL_BYTES` of idle framebuffers, releasing the least recently used past that.
+    """
+    key = (width, height, targets, samples)
+    found = [f for f in _idle if (f.width, f.height, len(f.colours), f.samples) == key]
+    framebuffer = found[-1] if found else Framebuffer(width, height, targets, samples)
+    if found:
+        _idle.remove(framebuffer)
+    try:
+        yield framebuffer
+    finally:
+        _idle.append(framebuffer)
+        while sum(_bytes(f) for f in _idle) > POOL_BYTES:
+            _idle.pop(0).release()

@@ -29,13 +29,14 @@ import trimesh
 from renderer import context, multisample
 from renderer.background import clear_colour, fill_background
 from renderer.context import GL
-from renderer.framebuffer import Framebuffer
+from renderer.framebuffer import Framebuffer, pooled
 from renderer.meshes import GpuMesh
 from renderer.program import Program, shared_program
 from renderer.scene import MAX_LIGHTS, Light, Scene, supersampled
 from renderer.shadows import MARGIN, ShadowMap, light_camera, shadow_matrix
 from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed
-from renderer.textures import array_texture, float_texture, raw_depth_sampler
+from renderer.texture_cache import cache as texture_cache
+from renderer.textures import array_texture, float_texture, map_texels, raw_depth_sampler
 from renderer.uniforms import (
     COMPOSITE_UNIT,
     LAST_UNIT,
@@ -46,6 +47,7 @@ from renderer.uniforms import (
     environment_textures,
     set_detail,
     set_environment,
+    set_floor,
     set_lights,
     set_specular,
     set_view,
@@ -188,7 +190,7 @@ def render_layers(scene: Scene) -> np.ndarray:
 
 
 def _render_layers(scene: Scene) -> np.ndarray:
-    with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(*scene.resolution) as target:
+    with context.lock, SurfacePass(scene) as surface_pass, pooled(*scene.resolution) as target:
         with multisample.canvas(target, scene.multisamples) as drawn:
             drawn.clear((*clear_colour(scene), 0.0))
             surface_pass.draw(drawn, split=False)
@@ -233,7 +235,8 @@ class SurfacePass:
         groups = 1 if self.channel is None else -(-self.channel["substrate"].size // 4)
         self.program = _layers_program(self.soft_shadows, stack.n_layers, groups, len(self.lights))
         self.props_program = _layers_program(self.soft_shadows, 0, 1, len(self.lights))  # bare RGB substrates
-        self.textures: list[int] = []
+        self.composite = 0
+        texture_cache.new_frame()  # nothing this pass binds is evicted while it draws
         self.raw_depth_sampler = raw_depth_sampler()
         self.shadow_maps: list[ShadowMap] = []
         self.gpu_meshes: list[GpuMesh] = []
@@ -263,11 +266,9 @@ class SurfacePass:
                 self.shadow_matrices[index] = shadow_matrix(light_matrix)
                 self.casts[index] = 1
         if self.composite_texels is not None:
-            self.textures.append(array_texture(self.composite_texels))
+            self.composite = array_texture(self.composite_texels)
         self.environment_textures = [] if self.environment is None else environment_textures(self.environment)
-        self.textures += self.environment_textures
         self.detail_textures = detail_textures(self.normal_map, self.substrate_roughness)
-        self.textures += [t for t in self.detail_textures if t]
 
     def draw(self, target: Framebuffer, *, split: bool) -> None:
         """Draw the mesh and the props into ``target`` (bound, cleared by the caller).
@@ -277,17 +278,17 @@ class SurfacePass:
         target.bind()
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
-        created: list[int] = []
         try:
             # The product (or the skin).
             program = self._use(self.program, split)
             if self.channel is not None:
-                created += _bind_channel_stack(program, self.channel)
+                _bind_channel_stack(program, self.channel)
             else:
-                _bind_precomposed(program, self.textures[0])
+                _bind_precomposed(program, self.composite)
             set_specular(program, self.lobes_bottom_up)
             GL.glUniform1i(program.location("u_skin"), 1)
             set_detail(program, self.normal_map, self.detail_textures)
+            set_floor(program, None, None)
             _draw(program, self.gpu_meshes[0], self.model)
             # The props: bare Lambert substrates in RGB, with the program of no films.
             if self.props:
@@ -296,13 +297,12 @@ class SurfacePass:
                 set_detail(program, None, [0, 0, 0])
                 GL.glUniform1i(program.location("u_skin"), 0)
             for prop, gpu_mesh, (_, prop_model) in zip(self.props, self.gpu_meshes[1:], self.draws[1:], strict=True):
-                created += _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
+                _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
+                set_floor(program, prop.floor_occlusion, prop.floor_frame)
                 _draw(program, gpu_mesh, prop_model)
             GL.glFinish()
         finally:
             _unbind_units()
-            if created:
-                GL.glDeleteTextures(len(created), created)
 
     def _use(self, program: Program, split: bool) -> Program:
         """Make ``program`` current with everything its draws share: view, lights, shadow maps, environment and the
@@ -336,13 +336,10 @@ class SurfacePass:
         return program
 
     def release(self) -> None:
-        """Free the meshes, textures, shadow maps and the sampler."""
+        """Free the meshes, shadow maps and the sampler (the textures stay in :mod:`renderer.texture_cache`)."""
         if self.raw_depth_sampler:
             GL.glDeleteSamplers(1, [self.raw_depth_sampler])
             self.raw_depth_sampler = 0
-        if self.textures:
-            GL.glDeleteTextures(len(self.textures), self.textures)
-        self.textures = []
         for item in [*self.shadow_maps, *self.gpu_meshes]:
             item.release()
         self.shadow_maps, self.gpu_meshes = [], []
@@ -388,7 +385,7 @@ def _even_axis(x: np.ndarray) -> tuple[float, float]:
 
 
 def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
-    """Set the uniforms and bind the textures of a channel stack; returns the textures created (caller deletes)."""
+    """Set the uniforms and bind the textures of a channel stack."""
     arrays, maps, substrate = channel["arrays"], channel["maps"], channel["substrate"]
     channels = substrate.size
     groups = -(-channels // 4)
@@ -417,25 +414,15 @@ def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
         program.location("u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
     )
     GL.glUniform3fv(program.location("u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
-    # Every texture is created first and bound afterwards: creating one binds it to the active unit, which would
-    # unbind what an earlier layer had put there.
-    units: list[tuple[int, int]] = []
-    created = []
+    # Every texture is made first and bound afterwards: creating one binds it to the active unit, which would unbind
+    # what an earlier layer had put there.
+    bound = {}
     for index, (x, r0, t) in enumerate(arrays):
-        created.append(float_texture(_table_texels(x, r0, t, groups), linear=False))
-        units.append((index, created[-1]))
+        bound[index] = float_texture(_table_texels(x, r0, t, groups), linear=False)
         if maps[index] is not None:
-            texels = np.zeros((*maps[index].shape, 4))
-            texels[..., 0] = maps[index][::-1]  # row 0 of the map is the top (v = 1)
-            created.append(float_texture(texels, linear=True))
-            units.append((MAX_LAYERS + index, created[-1]))
+            bound[MAX_LAYERS + index] = float_texture(map_texels(maps[index]), linear=True)
     if channel["substrate_map"] is not None:
-        texels = np.zeros((*channel["substrate_map"][0].shape[:2], 4))
-        texels[..., :3] = channel["substrate_map"][0][::-1]  # row 0 of the map is the top (v = 1)
-        created.append(float_texture(texels, linear=True))
-        units.append((SUBSTRATE_UNIT, created[-1]))
-    bound = dict(units)
+        bound[SUBSTRATE_UNIT] = float_texture(map_texels(channel["substrate_map"][0]), linear=True)
     for unit in [*range(2 * MAX_LAYERS), SUBSTRATE_UNIT]:
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
         GL.glBindTexture(GL.GL_TEXTURE_2D, bound.get(unit, 0))
-    return created

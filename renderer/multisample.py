@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from renderer.context import GL
-from renderer.framebuffer import Framebuffer
+from renderer.framebuffer import Framebuffer, pooled
 from renderer.program import Program, shared_program
 
 #: The sample counts a pass can be multisampled with (the resolve averages a power of two exactly).
@@ -76,6 +76,6 @@ def canvas(target: Framebuffer, samples: int) -> Iterator[Framebuffer]:
         yield target
         return
     check_samples(samples)
-    with Framebuffer(target.width, target.height, len(target.colours), samples=samples) as multisampled:
+    with pooled(target.width, target.height, len(target.colours), samples) as multisampled:
         yield multisampled
         resolve(multisampled, target)

@@ -10,12 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
 
 from renderer.environment import Environment
 from renderer.stack import ChannelStack, Precomposed, Specular
+
+if TYPE_CHECKING:  # (renderer.occlusion imports this module)
+    from renderer.occlusion import FloorOcclusion
 
 Vec3 = tuple[float, float, float]
 #: Most lights in one scene (as ``shaders/km_layers.frag`` defines it).
@@ -173,14 +177,18 @@ class Prop:
     """A plain diffuse object beside the product (a floor, a stand): Lambert ``albedo`` (linear RGB in [0, 1]).
 
     It receives light and shadows and casts shadows; ``model`` is its object -> world matrix (identity if None);
-    ``occlusion`` its ambient occlusion per vertex in [0, 1], darkening the environment's light (a floor under the
-    product: :class:`renderer.occlusion.FloorOcclusion`; None: 1).
+    ``occlusion`` its ambient occlusion per vertex in [0, 1], darkening the environment's light (None: 1). A floor
+    under the product takes its occlusion per pixel from a baked grid instead (``floor_occlusion``, looked up at
+    ``floor_frame`` times the world position: the product unturned; identity if None), so that a few large triangles
+    carry it.
     """
 
     mesh: trimesh.Trimesh
     albedo: tuple[float, float, float]
     model: np.ndarray | None = None
     occlusion: np.ndarray | None = None
+    floor_occlusion: FloorOcclusion | None = None
+    floor_frame: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ import numpy as np
 from renderer import context, multisample
 from renderer.background import clear_colour, fill_background
 from renderer.context import GL
-from renderer.framebuffer import Framebuffer
+from renderer.framebuffer import Framebuffer, pooled
 from renderer.layers import SurfacePass
 from renderer.program import Program, shared_program
 from renderer.scene import Camera, OrthographicCamera, Scattering, Scene, supersampled
@@ -71,7 +71,7 @@ def scatter(skin: Framebuffer, camera: Camera, scattering: Scattering) -> np.nda
     widening = np.sqrt(np.diff(np.concatenate([[0.0], SKIN_VARIANCES_MM2])))
     vao = GL.glGenVertexArrays(1)
     try:
-        with Framebuffer(width, height) as across, Framebuffer(width, height, targets=2) as along:
+        with pooled(width, height) as across, pooled(width, height, targets=2) as along:
             along.clear((0.0, 0.0, 0.0, 0.0))
             GL.glDisable(GL.GL_DEPTH_TEST)
             GL.glBindVertexArray(vao)
@@ -125,7 +125,7 @@ def render_skin(scene: Scene) -> np.ndarray:
 
 def _render_skin(scene: Scene) -> np.ndarray:
     width, height = scene.resolution
-    with context.lock, SurfacePass(scene) as surface_pass, Framebuffer(width, height, targets=3) as target:
+    with context.lock, SurfacePass(scene) as surface_pass, pooled(width, height, targets=3) as target:
         with multisample.canvas(target, scene.multisamples) as drawn:
             drawn.bind()
             for index, value in enumerate(((*clear_colour(scene), 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):

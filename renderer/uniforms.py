@@ -3,7 +3,8 @@ lobes, the environment light and the mesh's fine detail (normal map, film thickn
 
 Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12, the substrate map 13, the
 environment's irradiance 14, specular levels 15 and lobe table 16, the shadow maps' raw depths 17-20 (read through a
-sampler object that does not compare), the normal map 21, the films' total thickness 22, the substrate's roughness 23.
+sampler object that does not compare), the normal map 21, the films' total thickness 22, the substrate's roughness 23,
+a floor's occlusion grid 24.
 Every sampler has a unit of its own (GL forbids samplers of different types on one unit, even unused ones).
 """
 
@@ -16,6 +17,7 @@ import numpy as np
 from renderer.context import GL
 from renderer.environment import LOBE_M_RANGE, SPECULAR_LEVELS, lobe_albedo, prefiltered
 from renderer.program import Program
+from renderer.occlusion import FLOOR_EDGE, FloorOcclusion
 from renderer.scene import FILL_MM, MAX_LIGHTS, Camera, Light, NormalMap, OrthographicCamera, PointLight
 from renderer.stack import LOBE_COVER_MM, MAX_LAYERS, Specular
 from renderer.textures import array_texture, float_texture, map_texels
@@ -26,7 +28,8 @@ SUBSTRATE_UNIT = SHADOW_UNIT + MAX_LIGHTS
 ENV_UNIT = SUBSTRATE_UNIT + 1
 SHADOW_DEPTH_UNIT = ENV_UNIT + 3
 DETAIL_UNIT = SHADOW_DEPTH_UNIT + MAX_LIGHTS
-LAST_UNIT = DETAIL_UNIT + 2
+FLOOR_UNIT = DETAIL_UNIT + 3
+LAST_UNIT = FLOOR_UNIT
 
 
 def environment_textures(environment) -> list[int]:
@@ -152,3 +155,22 @@ def set_specular(program: Program, lobes: Sequence[Specular | None]) -> None:
     GL.glUniform1iv(program.location("u_specular_on"), slots, on)
     GL.glUniform1fv(program.location("u_roughness"), slots, roughness.astype(np.float32))
     GL.glUniform1fv(program.location("u_f0"), slots, f0.astype(np.float32))
+
+
+def set_floor(program: Program, floor: FloorOcclusion | None, frame: np.ndarray | None) -> None:
+    """A floor's baked occlusion grid (unit FLOOR_UNIT) and its place (``frame``: world -> the grid's frame, identity
+    if None), or u_floor_on = 0."""
+    GL.glUniform1i(program.location("u_floor_on"), int(floor is not None))
+    GL.glUniform1i(program.location("u_floor"), FLOOR_UNIT)
+    texture = 0
+    if floor is not None:
+        values = np.asarray(floor.values, dtype=float)
+        texels = np.zeros((*values.shape, 4), dtype=np.float32)
+        texels[..., 0] = values  # texel row i: z_i (no flip: the grid's rows run along +z as t does)
+        texture = float_texture(texels, linear=True)
+        program.set_mat4("u_floor_frame", np.eye(4) if frame is None else np.asarray(frame, dtype=float))
+        GL.glUniform4f(program.location("u_floor_grid"), *floor.centre, floor.extent, values.shape[0])
+        GL.glUniform3f(program.location("u_floor_fade"), floor.floor_y, floor.fade_mm, FLOOR_EDGE)
+    GL.glActiveTexture(GL.GL_TEXTURE0 + FLOOR_UNIT)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+    GL.glActiveTexture(GL.GL_TEXTURE0)

@@ -302,6 +302,32 @@ def test_a_baked_floor_is_its_grid_at_its_nodes_and_fades_to_open_sky():
     np.testing.assert_array_equal(floor.at(beyond), 1.0)
 
 
+@pytest.mark.parametrize("turn_deg", [0.0, 35.0])
+def test_a_floor_takes_its_baked_grid_per_pixel_where_it_lies_relative_to_the_product(turn_deg):
+    """A white floor of two triangles in a uniform environment of radiance 1, seen from above, renders the grid's
+    occlusion at each pixel centre's place in the grid's frame (FloorOcclusion.at: bilinear, the rim's fade), the
+    frame turned by the product's turn."""
+    rng = np.random.default_rng(7)
+    baked = FloorOcclusion((1.0, -2.0), 2.0, 8.0, rng.uniform(0.2, 1.0, (9, 9)), fade_mm=1.0)
+    a = np.radians(turn_deg)
+    frame = np.eye(4)
+    frame[[0, 0, 2, 2], [0, 2, 0, 2]] = np.cos(a), np.sin(a), -np.sin(a), np.cos(a)  # about +y
+    lift = np.eye(4)
+    lift[1, 3] = 2.0  # the floor at y = 2
+    side = np.array([-12.0, 12.0])
+    floor = Prop(floor_grid(side, side), (1.0, 1.0, 1.0), lift, floor_occlusion=baked, floor_frame=frame)
+    away = np.eye(4)
+    away[0, 3] = 1000.0  # the sphere out of the frame: the floor alone
+    top = OrthographicCamera(half_height=12.0, eye=(0.0, 100.0, 0.0), up=(0.0, 0.0, -1.0), near=1.0, far=300.0)
+    image = render_layers(scene(camera=top, model=away, props=[floor], environment=uniform(1.0)))
+    centres = -12.0 + (np.arange(SIZE) + 0.5) * 24.0 / SIZE  # x along columns; z along rows (the top row at -z)
+    x, z = np.meshgrid(centres, centres, indexing="xy")
+    points = np.stack([x, np.full_like(x, 2.0), z], axis=-1).reshape(-1, 3)
+    expected = baked.at(points @ frame[:3, :3].T).reshape(SIZE, SIZE)
+    assert expected.min() < 0.3 and np.mean(expected == 1.0) > 0.2  # dark inside the grid, open sky beyond it
+    np.testing.assert_allclose(image[..., 0], expected, atol=1e-5)  # float32 lookups
+
+
 def test_a_card_in_cells_is_the_same_card():
     one, many = meshes.card(30.0, 20.0), meshes.card(30.0, 20.0, 8)
     assert len(many.vertices) == 81 and len(many.faces) == 128

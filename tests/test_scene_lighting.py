@@ -246,20 +246,23 @@ def test_the_floor_under_a_product_in_an_environment_sees_the_sky_the_product_le
     scene = load_scene(write_scene(tmp_path, material, f"[environment]\n{floor}"))
     plan = plan_scene(scene)
     assert any("ambient occlusion: baked once on a 64 x 64 grid" in note for note in plan.notes)
+    centre, radius, _ = placed_bounds(scene)
+    d = np.linspace(0.0, 6.0, 121)[:, None] * radius  # along two directions on the floor from below the centre
+    on_floor = [centre + np.column_stack([r * np.cos(t), np.full_like(r, -radius), r * np.sin(t)])
+                for r in (d[:, 0],) for t in (0.4, 2.5)]  # fmt: skip
     for frame in renderer_scenes(scene, plan, [0.0, 70.0]):
         prop = frame.props[0]
-        placed = np.asarray(prop.mesh.vertices) @ prop.model[:3, :3].T + prop.model[:3, 3]
-        centre, radius, _ = placed_bounds(scene)
-        d = np.hypot(placed[:, 0] - centre[0], placed[:, 2] - centre[2])
-        on_floor = np.abs(placed[:, 1] - (centre[1] - radius)) < 1e-6 * radius
-        near = on_floor & (d > 1.3 * radius) & (d < 2.5 * radius)
-        assert near.sum() > 20
-        expected = 1.0 - (radius / np.hypot(d[near], radius)) ** 3
-        np.testing.assert_allclose(prop.occlusion[near], expected, atol=0.03)
-        outside = d > 3.0 * np.sqrt(2.0) * radius  # beyond the baked square (3 radii each way), however it turned
-        assert outside.sum() > 100 and np.all(prop.occlusion[outside] == 1.0)
+        assert prop.occlusion is None and len(prop.mesh.faces) <= 80  # per pixel: a few large triangles
+        for points in on_floor:
+            relative = points @ prop.floor_frame[:3, :3].T + prop.floor_frame[:3, 3]
+            ao = prop.floor_occlusion.at(relative)
+            near = (d[:, 0] > 1.3 * radius) & (d[:, 0] < 2.5 * radius)
+            expected = 1.0 - (radius / np.hypot(d[near, 0], radius)) ** 3
+            np.testing.assert_allclose(ao[near], expected, atol=0.03)
+            outside = d[:, 0] > 3.0 * np.sqrt(2.0) * radius  # beyond the baked square (3 radii each way)
+            np.testing.assert_array_equal(ao[outside], 1.0)
     (bare,) = renderer_scenes(scene := load_scene(write_scene(tmp_path, material, floor)), plan_scene(scene), [0.0])
-    assert bare.props[0].occlusion is None
+    assert bare.props[0].occlusion is None and bare.props[0].floor_occlusion is None
 
 
 def test_a_gradient_backdrop_fills_the_frame_behind_the_product(tmp_path, material, capsys):

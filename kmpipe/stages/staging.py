@@ -30,8 +30,6 @@ from renderer.scene import GradientBackground, NormalMap, Prop
 #: A sweep in radii of the product: (width, floor depth in front of the product's centre, gap behind it to the cove,
 #: cove radius, wall height above the floor).
 SWEEP_SIZE = (12.0, 5.0, 1.2, 2.0, 8.0)
-#: Spacing of a floor's vertices (ground or sweep), in radii of the product: they carry its baked ambient occlusion.
-FLOOR_VERTEX_SPACING = 0.1
 #: Height above the floor, in radii of the product, over which a sweep's occlusion fades to 1 as its cove rises.
 FLOOR_FADE = 0.25
 #: The bundled head's eyes: (file in kmpipe.formats.scene.HEAD_DIR, linear-RGB Lambert albedo), drawn as props.
@@ -48,14 +46,11 @@ def floor_prop(scene: Scene) -> Prop | None:
         model = np.eye(4)
         model[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # the card's +z normal turned to +y
         model[:3, 3] = (centre[0], bottom, centre[2])
-        cells = round(side / (FLOOR_VERTEX_SPACING * radius))
-        return Prop(card(side, side, cells), (scene.info.ground.reflectance,) * 3, model)
+        return Prop(card(side, side), (scene.info.ground.reflectance,) * 3, model)
     if backdrop is None or backdrop.kind != "sweep":
         return None
     width, depth, gap, cove, height = (radius * f for f in SWEEP_SIZE)
-    spacing = FLOOR_VERTEX_SPACING * radius
-    mesh = sweep(width, depth + gap, cove, height, n_floor=round((depth + gap) / spacing),
-                 n_across=round(width / spacing))  # fmt: skip
+    mesh = sweep(width, depth + gap, cove, height, n_across=1)  # flat across: one column of quads
     azimuth = math.radians(scene.info.camera.azimuth_deg)
     c, s = math.cos(azimuth), math.sin(azimuth)
     model = np.eye(4)
@@ -118,12 +113,10 @@ def floor_occlusion(scene: Scene) -> FloorOcclusion | None:
 
 
 def turned_floor(scene: Scene, floor: Prop, baked: FloorOcclusion, model: np.ndarray) -> Prop:
-    """The floor prop of a frame whose product stands at ``model`` (its turntable matrix), its vertices taking the
-    baked occlusion at their place relative to the product unturned: model_0 model^-1 applied to them."""
+    """The floor prop of a frame whose product stands at ``model`` (its turntable matrix), each pixel of it taking the
+    baked occlusion at its place relative to the product unturned: model_0 model^-1 applied to it."""
     unturn = scene.model @ np.linalg.inv(model)
-    placed = np.asarray(floor.mesh.vertices, dtype=float) @ floor.model[:3, :3].T + floor.model[:3, 3]
-    relative = placed @ unturn[:3, :3].T + unturn[:3, 3]
-    return Prop(floor.mesh, floor.albedo, floor.model, baked.at(relative))
+    return Prop(floor.mesh, floor.albedo, floor.model, floor_occlusion=baked, floor_frame=unturn)
 
 
 def at_uv(image: np.ndarray, uv: np.ndarray) -> np.ndarray:

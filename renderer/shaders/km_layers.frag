@@ -36,7 +36,8 @@
 // (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
 //
 // Environment (u_env_on = 1; renderer.environment): with the normal n and mirror direction r = reflect(-v, n) turned
-// into the environment's frame by u_env_rotation, and AO the vertex's baked ambient occlusion (renderer.occlusion),
+// into the environment's frame by u_env_rotation, and AO the vertex's baked ambient occlusion (renderer.occlusion)
+// times, on a floor, its baked grid's (floor_occlusion below),
 //   colour += s AO (E(n) / pi) R_rgb + s AO sum_i A_i (F0_i a(mu, m_i) + b(mu, m_i)) L_m_i(r)
 // with s the intensity, E / pi the prefiltered irradiance map, L_m the specular level for roughness m (linear between
 // levels) and (a, b) the lobe albedo table at mu = max(n.v, 0) (the split sum). The diffuse term enters the skin like
@@ -127,6 +128,12 @@ uniform float u_env_intensity;               // s
 uniform int u_env_level_count;               // specular levels (<= MAX_LEVELS)
 uniform float u_env_level_m[MAX_LEVELS];     // their Beckmann m, increasing (level 0: m = 0, the image itself)
 uniform vec2 u_env_lobe_range;               // sqrt(m) at the lobe table's first and last rows
+
+uniform int u_floor_on;                      // 1: this surface is a floor with a baked occlusion grid
+uniform sampler2D u_floor;                   // the grid's AO (red): texel row i, column j at z_i, x_j (bilinear)
+uniform mat4 u_floor_frame;                  // world -> the grid's frame (the product unturned), mm
+uniform vec4 u_floor_grid;                   // centre x, centre z, half width (mm) and nodes per side n
+uniform vec3 u_floor_fade;                   // floor height y, fade height (mm) and the rim's width (in half widths)
 
 uniform int u_use_normal_map;                // 1: fine detail from a tangent-space normal map over uv
 uniform sampler2D u_normal_map;              // unit vectors: x along +u, y along +v, z out of the surface
@@ -350,6 +357,23 @@ float shadow_visibility(int light, vec3 position) {
     return visibility;
 }
 
+// A floor's ambient occlusion at the fragment (renderer.occlusion.FloorOcclusion.at, per pixel): the grid's bilinear
+// value at the fragment's place in the grid's frame, s = (x - centre) / half width in [-1, 1]^2 on the grid, its
+// darkening 1 - AO scaled by smoothstep((1 - max |s|) / rim) and by smoothstep(1 - (y - floor) / fade); 1 elsewhere.
+float floor_occlusion() {
+    float open = 1.0;
+    if (u_floor_on == 1) {
+        vec3 p = (u_floor_frame * vec4(v_position, 1.0)).xyz;
+        vec2 s = (p.xz - u_floor_grid.xy) / u_floor_grid.z;
+        float n = u_floor_grid.w;
+        float value = textureLod(u_floor, ((s + 1.0) * 0.5 * (n - 1.0) + 0.5) / n, 0.0).r;
+        float rim = smoothstep(0.0, 1.0, (1.0 - max(abs(s.x), abs(s.y))) / u_floor_fade.z);
+        float height = smoothstep(0.0, 1.0, 1.0 - (p.y - u_floor_fade.x) / u_floor_fade.y);
+        open = 1.0 - (1.0 - value) * rim * height;
+    }
+    return open;
+}
+
 // Beckmann roughness of each lobe: the film's, or the substrate's (index MAX_LAYERS; from its map where there is one).
 void lobe_roughness(out float m[MAX_LAYERS + 1]) {
     for (int k = 0; k < MAX_LAYERS; ++k) m[k] = u_roughness[k];
@@ -480,7 +504,7 @@ void main() {
         skin += incident * (reflectance - over_black);
     }
     if (u_env_on == 1) {
-        float open_sky = u_env_intensity * v_occlusion;
+        float open_sky = u_env_intensity * v_occlusion * floor_occlusion();
         vec3 irradiance = textureLod(u_env_irradiance, equirect(n), 0.0).rgb * open_sky;
         colour += irradiance * surface;
         skin += irradiance * (reflectance - over_black);
