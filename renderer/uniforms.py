@@ -16,8 +16,8 @@ import numpy as np
 
 from renderer.context import GL
 from renderer.environment import LOBE_M_RANGE, SPECULAR_LEVELS, lobe_albedo, prefiltered
-from renderer.program import Program
 from renderer.occlusion import FLOOR_EDGE, FloorOcclusion
+from renderer.program import Program
 from renderer.scene import FILL_MM, MAX_LIGHTS, Camera, Light, NormalMap, OrthographicCamera, PointLight
 from renderer.stack import LOBE_COVER_MM, MAX_LAYERS, Specular
 from renderer.textures import array_texture, float_texture, map_texels
