@@ -384,7 +384,7 @@ def _even_axis(x: np.ndarray) -> tuple[float, float]:
     return float(x[0]), float(1.0 / spacing)
 
 
-def _bind_channel_stack(program: Program, channel: dict) -> list[int]:
+def _bind_channel_stack(program: Program, channel: dict) -> None:
     """Set the uniforms and bind the textures of a channel stack."""
     arrays, maps, substrate = channel["arrays"], channel["maps"], channel["substrate"]
     channels = substrate.size

@@ -248,8 +248,8 @@ def test_the_floor_under_a_product_in_an_environment_sees_the_sky_the_product_le
     assert any("ambient occlusion: baked once on a 64 x 64 grid" in note for note in plan.notes)
     centre, radius, _ = placed_bounds(scene)
     d = np.linspace(0.0, 6.0, 121)[:, None] * radius  # along two directions on the floor from below the centre
-    on_floor = [centre + np.column_stack([r * np.cos(t), np.full_like(r, -radius), r * np.sin(t)])
-                for r in (d[:, 0],) for t in (0.4, 2.5)]  # fmt: skip
+    r = d[:, 0]
+    on_floor = [centre + np.column_stack([r * np.cos(t), np.full_like(r, -radius), r * np.sin(t)]) for t in (0.4, 2.5)]
     for frame in renderer_scenes(scene, plan, [0.0, 70.0]):
         prop = frame.props[0]
         assert prop.occlusion is None and len(prop.mesh.faces) <= 80  # per pixel: a few large triangles
