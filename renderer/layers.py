@@ -26,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 
-from renderer import context, multisample
+from renderer import context, multisample, visible_depth
 from renderer.background import clear_colour, fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer, pooled
@@ -51,6 +51,7 @@ from renderer.uniforms import (
     set_lights,
     set_specular,
     set_view,
+    set_visible,
 )
 
 
@@ -273,14 +274,24 @@ class SurfacePass:
     def draw(self, target: Framebuffer, *, split: bool) -> None:
         """Draw the mesh and the props into ``target`` (bound, cleared by the caller).
 
-        ``split``: the skin pass's three outputs (km_layers.frag), the mesh being skin; else one colour output.
+        ``split``: the skin pass's three outputs (km_layers.frag), the mesh being skin; else one colour output. A
+        multisampled target on llvmpipe gets a depth pass first (:mod:`renderer.visible_depth`), so that fragments
+        hidden at every sample are not shaded; the frame is the same.
         """
+        draws = [(mesh, model) for mesh, (_, model) in zip(self.gpu_meshes, self.draws, strict=True)]
+        size = (target.width, target.height, target.samples)
+        with visible_depth.bounds(*size, draws, self.view_projection) as bounds:
+            self._draw_all(target, split, 0 if bounds is None else bounds.colour)
+
+    def _draw_all(self, target: Framebuffer, split: bool, bounds: int) -> None:
+        """:meth:`draw` with the samples' depth bounds texture ``bounds`` (0: none, every fragment shaded)."""
         target.bind()
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
         try:
             # The product (or the skin).
             program = self._use(self.program, split)
+            set_visible(program, bounds, target.samples)
             if self.channel is not None:
                 _bind_channel_stack(program, self.channel)
             else:
@@ -296,6 +307,7 @@ class SurfacePass:
                 set_specular(program, [])
                 set_detail(program, None, [0, 0, 0])
                 GL.glUniform1i(program.location("u_skin"), 0)
+                set_visible(program, bounds, target.samples)
             for prop, gpu_mesh, (_, prop_model) in zip(self.props, self.gpu_meshes[1:], self.draws[1:], strict=True):
                 _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
                 set_floor(program, prop.floor_occlusion, prop.floor_frame)
@@ -356,6 +368,7 @@ def _unbind_units() -> None:
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit_index)
         GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
         GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, 0)
+        GL.glBindTexture(GL.GL_TEXTURE_2D_MULTISAMPLE, 0)
         GL.glBindSampler(unit_index, 0)
     GL.glActiveTexture(GL.GL_TEXTURE0)
 

@@ -5,7 +5,8 @@ per pixel and triangle (at the pixel's centre), its result written to the sample
 (``shaders/msaa_resolve.frag``) averages each pixel's samples in a fixed order, so a pixel that one surface covers
 keeps that surface's value exactly and a pixel a silhouette crosses takes the share of its samples on each side:
 the same antialiasing of edges as :func:`renderer.scene.supersampled` at ``samples`` samples a pixel, for about the
-shading cost of one sample a pixel (texture and shading detail inside a triangle is not antialiased).
+shading cost of one sample a pixel (texture and shading detail inside a triangle is not antialiased; on llvmpipe the
+layer pass first draws depth bounds, :mod:`renderer.visible_depth`, to shade only what some sample shows).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ lobes, the environment light and the mesh's fine detail (normal map, film thickn
 Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12, the substrate map 13, the
 environment's irradiance 14, specular levels 15 and lobe table 16, the shadow maps' raw depths 17-20 (read through a
 sampler object that does not compare), the normal map 21, the films' total thickness 22, the substrate's roughness 23,
-a floor's occlusion grid 24.
+a floor's occlusion grid 24, the samples' depth bounds of renderer.visible_depth 25.
 Every sampler has a unit of its own (GL forbids samplers of different types on one unit, even unused ones).
 """
 
@@ -29,7 +29,8 @@ ENV_UNIT = SUBSTRATE_UNIT + 1
 SHADOW_DEPTH_UNIT = ENV_UNIT + 3
 DETAIL_UNIT = SHADOW_DEPTH_UNIT + MAX_LIGHTS
 FLOOR_UNIT = DETAIL_UNIT + 3
-LAST_UNIT = FLOOR_UNIT
+VISIBLE_UNIT = FLOOR_UNIT + 1
+LAST_UNIT = VISIBLE_UNIT
 
 
 def environment_textures(environment) -> list[int]:
@@ -173,4 +174,15 @@ def set_floor(program: Program, floor: FloorOcclusion | None, frame: np.ndarray 
         GL.glUniform3f(program.location("u_floor_fade"), floor.floor_y, floor.fade_mm, FLOOR_EDGE)
     GL.glActiveTexture(GL.GL_TEXTURE0 + FLOOR_UNIT)
     GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+    GL.glActiveTexture(GL.GL_TEXTURE0)
+
+
+def set_visible(program: Program, bounds: int, samples: int) -> None:
+    """The samples' depth bounds of :func:`renderer.visible_depth.bounds` (unit VISIBLE_UNIT), or none (0): then
+    every fragment is shaded."""
+    GL.glUniform1i(program.location("u_visible_on"), int(bounds != 0))
+    GL.glUniform1i(program.location("u_visible_depth"), VISIBLE_UNIT)
+    GL.glUniform1i(program.location("u_visible_samples"), samples)
+    GL.glActiveTexture(GL.GL_TEXTURE0 + VISIBLE_UNIT)
+    GL.glBindTexture(GL.GL_TEXTURE_2D_MULTISAMPLE, bounds)
     GL.glActiveTexture(GL.GL_TEXTURE0)

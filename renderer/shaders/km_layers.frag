@@ -143,6 +143,9 @@ uniform int u_use_roughness_map;             // 1: the substrate lobe's roughnes
 uniform sampler2D u_roughness_map;           // its Beckmann m (red)
 uniform float u_lobe_cover_mm;               // a film's lobe is weighted by clamp(thickness / this, 0, 1)
 
+uniform int u_visible_on;                    // 1: skip fragments behind u_visible_depth at every sample
+uniform sampler2DMS u_visible_depth;         // per sample: the depth bound of what it shows (renderer.visible_depth)
+uniform int u_visible_samples;               // samples a pixel of u_visible_depth
 uniform int u_orthographic;                  // 1: the view direction is u_view_vector everywhere
 uniform vec3 u_view_vector;                  // orthographic: unit vector towards the camera; else: eye (mm)
 
@@ -452,7 +455,21 @@ float lobe_albedo(int k, float m, float mu) {
     return u_f0[k] * ab.x + ab.y;
 }
 
-void main() {
+// True where this fragment lies behind what every sample of its pixel shows (renderer.visible_depth): its nearest
+// depth in the pixel, z - 0.5 fwidth(z), beyond the largest of the samples' depth bounds. Its outputs are then
+// discarded by the depth test at every sample, and it need not be shaded.
+bool hidden() {
+    bool behind = false;
+    if (u_visible_on == 1) {
+        ivec2 pixel = ivec2(gl_FragCoord.xy);
+        float bound = 0.0;
+        for (int s = 0; s < u_visible_samples; ++s) bound = max(bound, texelFetch(u_visible_depth, pixel, s).r);
+        behind = gl_FragCoord.z - 0.5 * fwidth(gl_FragCoord.z) > bound + 1e-6;
+    }
+    return behind;
+}
+
+void shade() {
     vec3 reflectance;
     vec3 over_black;
     vec3 attenuation[MAX_LAYERS + 1];
@@ -521,4 +538,14 @@ void main() {
     f_colour = vec4(colour, 1.0);
     f_skin = split ? vec4(skin, 1.0) : vec4(0.0);  // alpha: the skin mask
     f_depth = vec4(v_view_depth, 0.0, 0.0, 1.0);
+}
+
+void main() {
+    if (hidden()) {
+        f_colour = vec4(0.0);
+        f_skin = vec4(0.0);
+        f_depth = vec4(0.0);
+    } else {
+        shade();
+    }
 }
