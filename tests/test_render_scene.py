@@ -546,6 +546,24 @@ def test_a_frame_with_nan_pixels_is_an_internal_error_and_writes_nothing(tmp_pat
     assert list((tmp_path / "out").iterdir()) == []
 
 
+def test_progress_is_reported_once_a_frame_is_on_disk_in_order(tmp_path, material_file):
+    """Frames are written by a thread while the next renders: on_frame(i, n) must still come after frame i's files
+    exist, once per frame and in order."""
+    from kmpipe.stages.render import render_scene
+
+    out = tmp_path / "out"
+    seen = []
+
+    def on_frame(done: int, total: int) -> None:
+        on_disk = all((out / f"frame_{i:03d}.{ext}").is_file() for i in range(done) for ext in ("exr", "png"))
+        seen.append((done, total, on_disk))
+
+    scene = write_scene(tmp_path, material_file, "[turntable]\nframes = 3\n[output]\nvideo = []\n")
+    written = render_scene(scene, out, echo=lambda text: None, on_frame=on_frame)
+    assert seen == [(1, 3, True), (2, 3, True), (3, 3, True)]
+    assert all(path.is_file() for path in written) and len(written) == 6
+
+
 def test_an_exit_between_the_renames_leaves_no_exr_without_its_png(tmp_path, material_file, monkeypatch):
     import renderer.atomic_write
     from kmpipe.stages.render import render_scene

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -325,22 +326,39 @@ def render_scene(
     render = render_skin if on_skin else render_layers
     written = []
     scenes = renderer_scenes(scene, plan, [angles[i] for i in chosen], scattering=scattering)
-    for done, (i, frame) in enumerate(zip(chosen, scenes, strict=True)):
-        for folder in folders:
-            image = render(frame if folder == out_dir else dataclasses.replace(frame, scattering=None))
-            exr, png = folder / f"frame_{i:03d}.exr", folder / f"frame_{i:03d}.png"
-            frame_header = {
-                **header,
-                "camera_azimuth_deg": float((info.camera.azimuth_deg + angles[i]) % 360.0),
-                "turntable_deg": float(angles[i]),
-                "frame": i,
-            }
-            if folder != out_dir:
-                frame_header["subsurface_scattering"] = "off (A/B comparison)"
-            _write_frame(exr, png, image, frame_header, info.output)
-            written += [exr, png]
-        if on_frame is not None:
-            on_frame(done + 1, len(chosen))
+    # A frame is written (tone mapped, encoded, fsynced) by a thread of its own while the next one renders; at most
+    # one write waits, and its error surfaces here before the next frame is handed over. on_frame follows the writes.
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kmpipe-frame-writer") as writer:
+        pending: tuple[Future, int | None] | None = None  # the write in flight, and the frames done when it ends
+
+        def finish() -> None:
+            write, frames_done = pending
+            write.result()
+            if on_frame is not None and frames_done is not None:
+                on_frame(frames_done, len(chosen))
+
+        for done, (i, frame) in enumerate(zip(chosen, scenes, strict=True)):
+            for folder in folders:
+                image = render(frame if folder == out_dir else dataclasses.replace(frame, scattering=None))
+                exr, png = folder / f"frame_{i:03d}.exr", folder / f"frame_{i:03d}.png"
+                frame_header = {
+                    **header,
+                    "camera_azimuth_deg": float((info.camera.azimuth_deg + angles[i]) % 360.0),
+                    "turntable_deg": float(angles[i]),
+                    "frame": i,
+                }
+                if folder != out_dir:
+                    frame_header["subsurface_scattering"] = "off (A/B comparison)"
+                if pending is not None:
+                    finish()
+                last = folder == folders[-1]
+                pending = (
+                    writer.submit(_write_frame, exr, png, image, frame_header, info.output),
+                    done + 1 if last else None,
+                )
+                written += [exr, png]
+        if pending is not None:
+            finish()
     if ab_scattering:
         written.append(_ab_sheet(out_dir, scene, len(angles)))
     if frames is None:  # the whole turntable: its videos (none for one frame, or with [output] video = [])
