@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    .venv/bin/python recipes/demo/record_sessions.py          # every sample: F1 F2 B1 L1 L2
+    .venv/bin/python recipes/demo/record_sessions.py          # every sample: F1 F2 B1 E1 L1 L2
     .venv/bin/python recipes/demo/record_sessions.py F1 B1    # some of them
 
 For each sample S it starts the CS-2000 emulator on a pseudo-terminal with the sample's script
@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))  # run as a script: import kmpipe and instruments 
 from kmpipe.cli import main  # noqa: E402
 from kmpipe.formats.emulator_script import emulator_from_script  # noqa: E402
 
-SAMPLES = ("F1", "F2", "B1", "L1", "L2")
+SAMPLES = ("F1", "F2", "B1", "E1", "L1", "L2")
 TIME_SCALE = 0.01  # 1 instrument second = 10 ms
 
 
