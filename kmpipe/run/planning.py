@@ -170,7 +170,7 @@ def plan_run(
     >>> recipe = pathlib.Path(kmpipe.__file__).parents[1] / "recipes" / "demo" / "recipe.toml"
     >>> plan = plan_run(recipe, pathlib.Path(tempfile.mkdtemp()))  # nothing is written: the graph and what is cached
     >>> sorted(collections.Counter(task.kind for task in plan.tasks.values()).items())
-    [('material', 5), ('plan', 6), ('render', 12), ('reports', 1), ('sheet', 1), ('validate', 5), ('video', 6)]
+    [('material', 6), ('plan', 7), ('render', 14), ('reports', 1), ('sheet', 1), ('validate', 6), ('video', 7)]
     >>> {task.state for task in plan.tasks.values()}
     {'pending'}
     """
