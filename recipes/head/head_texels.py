@@ -19,6 +19,15 @@ def smoothstep(lo: float, hi: float, x: np.ndarray) -> np.ndarray:
     return t * t * (3.0 - 2.0 * t)
 
 
+def hairline_mm(azimuth_deg: np.ndarray) -> np.ndarray:
+    """The bundled head's hairline: its height y (mm) by azimuth about the head's vertical axis (degrees, 0 at the
+    face, either side): the forehead, the temples, a sideburn before the ear, over the ear, the nape. The skin maps'
+    paler scalp starts here, and the cosmetic map's foundation stops here."""
+    knots = [0.0, 25.0, 38.0, 46.0, 50.0, 53.0, 56.0, 75.0, 90.0, 120.0, 150.0, 180.0]
+    heights = [76.0, 72.0, 60.0, 35.0, 5.0, 5.0, 32.0, 30.0, 10.0, -30.0, -55.0, -60.0]
+    return np.interp(np.abs(azimuth_deg), knots, heights)
+
+
 def texel_points(mesh, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The head's point (mm) at each texel's centre (size, size, 3), where the uv islands cover (size, size) and the
     triangle covering each texel (size, size; -1 where none does).

@@ -40,7 +40,7 @@ from pathlib import Path
 import colour
 import cv2
 import numpy as np
-from head_texels import lip_outline, mouth, smoothstep, texel_frames, texel_points
+from head_texels import hairline_mm, lip_outline, mouth, smoothstep, texel_frames, texel_points
 from scipy.ndimage import gaussian_filter, map_coordinates
 from scipy.spatial import cKDTree
 
@@ -84,11 +84,8 @@ class Head:
         self.tip = midline[np.argmax(midline[:, 2])]  # the nose's tip
 
     def hairline(self) -> np.ndarray:
-        """The hairline's height (mm) by azimuth: the forehead, temples, a sideburn before the ear, over the ear, the
-        nape."""
-        knots = [0.0, 25.0, 38.0, 46.0, 50.0, 53.0, 56.0, 75.0, 90.0, 120.0, 150.0, 180.0]
-        heights = [76.0, 72.0, 60.0, 35.0, 5.0, 5.0, 32.0, 30.0, 10.0, -30.0, -55.0, -60.0]
-        return np.interp(np.abs(self.azimuth), knots, heights)
+        """The hairline's height (mm) at each texel (:func:`head_texels.hairline_mm`)."""
+        return hairline_mm(self.azimuth)
 
     def jaw(self) -> np.ndarray:
         """The jaw line's height (mm), rising towards the ears (as make_head_map.py's foundation), level behind them

@@ -7,7 +7,9 @@ blue the lipstick; head_eyeshadow.png (one channel) the eyeshadow; 0 to 1 as the
 thickness; zero off the face. 16-bit PNGs stored linearly (renderer.image_io.write_map).
 
 - foundation: the front of the face, |azimuth| about the head's vertical axis under 55 deg fading to 75 deg, up to
-  a hairline 25 to 55 mm above the eyes (a 30 mm fade), down to a jaw line that rises towards the ears (12 mm fade);
+  the head's hairline (head_texels.hairline_mm, where the skin maps' paler scalp begins: full to 8 mm below it, none
+  2 mm above it, so that no band of bare forehead shows between the film and the scalp), down to a jaw line that
+  rises towards the ears (12 mm fade);
 - blush: on each cheekbone, 28 mm below and 14 mm outside the eye, a Gaussian stretched (sd 20 mm x 10 mm) up and
   out towards the temple;
 - lipstick: the lips, between the mouth line and an upper and a lower lip outline (a Cupid's bow in the upper),
@@ -28,7 +30,7 @@ from renderer.products import load_mesh
 
 HEAD = Path(__file__).resolve().parents[1] / "head"
 sys.path.insert(0, str(HEAD))
-from head_texels import lip_outline, smoothstep, texel_points  # noqa: E402  (the head's uv rasteriser, lip outline)
+from head_texels import hairline_mm, lip_outline, smoothstep, texel_points  # noqa: E402  (the head's uv rasteriser, lip outline)
 
 SIZE = 1024
 #: Height (mm) of the lash line, the top of the eye's opening, above the eye's landmark (the bundled head's lids: the
@@ -42,7 +44,8 @@ def makeup(points: np.ndarray, mesh, marks: dict) -> np.ndarray:
     eye_x, eye_y = marks["joint-l-eye"][0], marks["joint-l-eye"][1]
     azimuth = np.degrees(np.arctan2(x, z - marks["joint-head"][2]))
     jaw = marks["joint-jaw"][1] + 12.0 + 40.0 * (azimuth / 70.0) ** 2  # the jaw line rises towards the ears
-    foundation = (1.0 - smoothstep(55.0, 75.0, np.abs(azimuth))) * (1.0 - smoothstep(eye_y + 25.0, eye_y + 55.0, y))
+    hairline = hairline_mm(azimuth)
+    foundation = (1.0 - smoothstep(55.0, 75.0, np.abs(azimuth))) * (1.0 - smoothstep(hairline - 8.0, hairline + 2.0, y))
     foundation *= smoothstep(jaw - 6.0, jaw + 6.0, y)
     blush = np.zeros_like(x)
     for side in (-1.0, 1.0):  # along (0.8, 0.6): up and out towards the temple; across it
