@@ -166,9 +166,8 @@ def set_floor(program: Program, floor: FloorOcclusion | None, frame: np.ndarray 
     texture = 0
     if floor is not None:
         values = np.asarray(floor.values, dtype=float)
-        texels = np.zeros((*values.shape, 4), dtype=np.float32)
-        texels[..., 0] = values  # texel row i: z_i (no flip: the grid's rows run along +z as t does)
-        texture = float_texture(texels, linear=True)
+        # one channel; texel row i: z_i (no flip: the grid's rows run along +z as t does)
+        texture = float_texture(values.astype(np.float32)[..., None], linear=True)
         program.set_mat4("u_floor_frame", np.eye(4) if frame is None else np.asarray(frame, dtype=float))
         GL.glUniform4f(program.location("u_floor_grid"), *floor.centre, floor.extent, values.shape[0])
         GL.glUniform3f(program.location("u_floor_fade"), floor.floor_y, floor.fade_mm, FLOOR_EDGE)

@@ -192,3 +192,36 @@ def test_exr_accepts_a_broadcast_image(tmp_path):
     image_io.write_exr(path, np.broadcast_to(colour, (4, 5, 3)), {})
     pixels, _ = image_io.read_exr(path)
     assert pixels.shape == (4, 5, 3) and np.array_equal(pixels, np.broadcast_to(colour, (4, 5, 3)))
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3, 4])
+def test_a_float_texture_keeps_its_channels_and_values(channels):
+    """A map of C channels becomes a C-channel float32 texture (read back from GL) holding its texels as uploaded, the
+    rows flipped so that the map's first row lies at t = 1."""
+    from renderer.context import GL
+    from renderer.textures import float_texture, map_texels
+
+    values = np.random.default_rng(channels).random((5, 7, channels))
+    with context.lock:
+        context.make_current(8, 8)
+        texture = float_texture(map_texels(values[..., 0] if channels == 1 else values), linear=True)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+        assert GL.glGetTexLevelParameteriv(GL.GL_TEXTURE_2D, 0, GL.GL_TEXTURE_INTERNAL_FORMAT) == {
+            1: GL.GL_R32F, 2: GL.GL_RG32F, 3: GL.GL_RGB32F, 4: GL.GL_RGBA32F}[channels]  # fmt: skip
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 4)
+        stored = np.frombuffer(GL.glGetTexImage(GL.GL_TEXTURE_2D, 0, GL.GL_RGBA, GL.GL_FLOAT), np.float32)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+    stored = stored.reshape(5, 7, 4)
+    np.testing.assert_array_equal(stored[..., :channels], values[::-1].astype(np.float32))
+    assert np.all(stored[..., channels:3] == 0.0)  # a missing colour channel reads as 0 ...
+    if channels < 4:
+        assert np.all(stored[..., 3] == 1.0)  # ... and a missing alpha as 1
+
+
+def test_a_float_texture_of_five_channels_is_refused():
+    from renderer.textures import float_texture
+
+    with context.lock:
+        context.make_current(8, 8)
+        with pytest.raises(ValueError, match="1 to 4 channels"):
+            float_texture(np.zeros((2, 2, 5), np.float32), linear=True)
