@@ -62,8 +62,32 @@ def _camera_scale(camera: Camera, height: int) -> tuple[float, bool]:
     return focal_pixels / 1000.0, False
 
 
-def scatter(skin: Framebuffer, camera: Camera, scattering: Scattering) -> np.ndarray:
-    """Blur the skin light (target 1 of ``skin``, the skin pass) with the skin profile; linear RGB (h, w, 3)."""
+def skin_region(mesh_vertices: np.ndarray, model: np.ndarray, view_projection: np.ndarray, width: int,
+                height: int) -> tuple[int, int, int, int] | None:  # fmt: skip
+    """The pixels the skin can cover: the box (x0, y0, x1, y1), GL window pixels from the bottom left, end exclusive,
+    around the projected vertices of the skin mesh, grown by 2 pixels and clipped to the frame; None (the whole frame)
+    when a vertex lies behind the camera. A triangle projects inside the box of its corners, so no skin pixel, nor
+    any sample of one, lies outside it."""
+    corners = np.c_[np.asarray(mesh_vertices, dtype=float), np.ones(len(mesh_vertices))] @ (view_projection @ model).T
+    if not np.all(corners[:, 3] > 0.0):
+        return None
+    ndc = corners[:, :2] / corners[:, 3:]
+    low = np.floor((ndc.min(axis=0) * 0.5 + 0.5) * (width, height)) - 2
+    high = np.ceil((ndc.max(axis=0) * 0.5 + 0.5) * (width, height)) + 2
+    x0, y0 = np.clip(low, 0, (width, height)).astype(int)
+    x1, y1 = np.clip(high, 0, (width, height)).astype(int)
+    return int(x0), int(y0), int(x1), int(y1)
+
+
+def scatter(
+    skin: Framebuffer, camera: Camera, scattering: Scattering, region: tuple[int, int, int, int] | None = None
+) -> np.ndarray:
+    """Blur the skin light (target 1 of ``skin``, the skin pass) with the skin profile; linear RGB (h, w, 3).
+
+    ``region`` (:func:`skin_region`) limits the blur's passes to the pixels the skin can cover (a scissor box): every
+    pixel outside it holds no skin light, which the blur would carry through as 0, and reads 0 here as well; None
+    blurs the whole frame.
+    """
     width, height = skin.width, skin.height
     program = _blur_program()
     scale, orthographic = _camera_scale(camera, height)
@@ -73,6 +97,10 @@ def scatter(skin: Framebuffer, camera: Camera, scattering: Scattering) -> np.nda
     try:
         with pooled(width, height) as across, pooled(width, height, targets=2) as along:
             along.clear((0.0, 0.0, 0.0, 0.0))
+            across.clear((0.0, 0.0, 0.0, 0.0))  # outside the region: 0, as the blur of no skin light
+            if region is not None:
+                GL.glEnable(GL.GL_SCISSOR_TEST)
+                GL.glScissor(region[0], region[1], region[2] - region[0], region[3] - region[1])
             GL.glDisable(GL.GL_DEPTH_TEST)
             GL.glBindVertexArray(vao)
             program.use()
@@ -102,8 +130,10 @@ def scatter(skin: Framebuffer, camera: Camera, scattering: Scattering) -> np.nda
                     GL.glDisablei(GL.GL_BLEND, 1)
                 source = along.colours[0]
             GL.glFinish()
+            GL.glDisable(GL.GL_SCISSOR_TEST)
             return along.read_rgba(1)[..., :3]
     finally:
+        GL.glDisable(GL.GL_SCISSOR_TEST)
         GL.glBindVertexArray(0)
         GL.glActiveTexture(GL.GL_TEXTURE1)
         GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
@@ -135,4 +165,5 @@ def _render_skin(scene: Scene) -> np.ndarray:
         surface = fill_background(target.read_rgba(0), scene)
         if scene.scattering is None:
             return surface + target.read_rgba(1)[..., :3]
-        return surface + scatter(target, scene.camera, scene.scattering)
+        region = skin_region(scene.mesh.vertices, surface_pass.model, surface_pass.view_projection, width, height)
+        return surface + scatter(target, scene.camera, scene.scattering, region)

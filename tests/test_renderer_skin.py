@@ -13,6 +13,8 @@ the lobes; with no lobes and films of known R0 it is the render minus ``E cos(th
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import assume, given
@@ -359,3 +361,46 @@ def test_the_blur_follows_the_pixels_per_mm():
     }  # fmt: skip
     assert perspective[200.0] / perspective[100.0] == pytest.approx(0.5, abs=0.05)
     assert perspective[100.0] == pytest.approx(orthographic[1.0], rel=0.05)
+
+
+def test_the_skin_region_is_the_projected_sphere_grown_by_two_pixels():
+    """A sphere of radius 6 mm at (3, -2, 0) seen head-on by an orthographic camera 20 mm tall on 64 px: its
+    silhouette spans (3 +- 6, -2 +- 6) mm, so the box is those spans in pixels, 3.2 px a mm from the frame's centre,
+    grown by 2 and clipped to the frame."""
+    from renderer.skin import skin_region
+
+    camera = OrthographicCamera(half_height=10.0)
+    view_projection = camera.projection_matrix(1.0) @ camera.view_matrix()
+    model = np.eye(4)
+    model[:3, 3] = (3.0, -2.0, 0.0)
+    region = skin_region(meshes.sphere(6.0).vertices, model, view_projection, 64, 64)
+    expected = (np.floor(32 + 3.2 * -3.0) - 2, np.floor(32 + 3.2 * -8.0) - 2, np.ceil(32 + 3.2 * 9.0) + 2,
+                np.ceil(32 + 3.2 * 4.0) + 2)  # fmt: skip
+    assert region == tuple(int(v) for v in expected)
+    assert skin_region(meshes.sphere(60.0).vertices, np.eye(4), view_projection, 64, 64) == (0, 0, 64, 64)
+    behind = PerspectiveCamera(fov_y_deg=40.0, eye=(0.0, 0.0, 3.0))  # the camera inside the sphere
+    perspective = behind.projection_matrix(1.0) @ behind.view_matrix()
+    assert skin_region(meshes.sphere(6.0).vertices, np.eye(4), perspective, 64, 64) is None
+
+
+def test_blurring_only_the_skin_region_leaves_the_frame_unchanged(monkeypatch):
+    """Skin on a sphere that covers part of the frame, before a lit card: the blur limited to the sphere's box equals
+    the blur over the whole frame, bit for bit."""
+    import renderer.skin
+
+    back = meshes.card(40.0, 40.0)
+    back.apply_translation((0.0, 0.0, -20.0))
+    scene = Scene(
+        mesh=meshes.sphere(5.0),
+        camera=OrthographicCamera(half_height=10.0),
+        lights=[DirectionalLight(direction=(-0.3, -0.5, -1.0), radiance=(1.0, 1.0, 1.0))],
+        stack=ChannelStack([], [], (0.75, 0.5, 0.4)),
+        resolution=(64, 64),
+        scattering=Scattering(alpha=1.0),  # the widest Gaussian reaches about 13 px, within the 32 px sphere
+        props=[Prop(back, (0.5, 0.5, 0.5))],
+    )
+    boxed = render_skin(scene)
+    monkeypatch.setattr(renderer.skin, "skin_region", lambda *args: None)
+    whole = render_skin(scene)
+    assert np.array_equal(boxed, whole)
+    assert not np.array_equal(whole, render_skin(dataclasses.replace(scene, scattering=None)))  # the blur did blur
