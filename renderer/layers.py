@@ -241,6 +241,7 @@ class SurfacePass:
         self.raw_depth_sampler = raw_depth_sampler()
         self.shadow_maps: list[ShadowMap] = []
         self.gpu_meshes: list[GpuMesh] = []
+        self.gpu_draws: list[tuple[GpuMesh, np.ndarray]] = []  # each uploaded mesh with its model matrix
         try:
             self._prepare()
         except BaseException:
@@ -250,6 +251,7 @@ class SurfacePass:
     def _prepare(self) -> None:
         occlusions = [self.occlusion, *(prop.occlusion for prop in self.props)]
         self.gpu_meshes = [GpuMesh(m, ao) for (m, _), ao in zip(self.draws, occlusions, strict=True)]
+        self.gpu_draws = [(gpu, model) for gpu, (_, model) in zip(self.gpu_meshes, self.draws, strict=True)]
         centre, radius = _world_bounds(self.draws)
         self.shadow_matrices = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
         self.shadow_ranges = np.ones((MAX_LIGHTS, 2))
@@ -261,9 +263,7 @@ class SurfacePass:
                 frustum = light_camera(light, centre, radius)
                 light_matrix = frustum.projection_matrix(1.0) @ frustum.view_matrix()
                 self.shadow_ranges[index] = (frustum.near, frustum.far)
-                self.shadow_maps[-1].render(
-                    list(zip(self.gpu_meshes, [m for _, m in self.draws], strict=True)), light_matrix
-                )
+                self.shadow_maps[-1].render(self.gpu_draws, light_matrix)
                 self.shadow_matrices[index] = shadow_matrix(light_matrix)
                 self.casts[index] = 1
         if self.composite_texels is not None:
@@ -278,9 +278,8 @@ class SurfacePass:
         multisampled target on llvmpipe gets a depth pass first (:mod:`renderer.visible_depth`), so that fragments
         hidden at every sample are not shaded; the frame is the same.
         """
-        draws = [(mesh, model) for mesh, (_, model) in zip(self.gpu_meshes, self.draws, strict=True)]
         size = (target.width, target.height, target.samples)
-        with visible_depth.bounds(*size, draws, self.view_projection) as bounds:
+        with visible_depth.bounds(*size, self.gpu_draws, self.view_projection) as bounds:
             self._draw_all(target, split, 0 if bounds is None else bounds.colour)
 
     def _draw_all(self, target: Framebuffer, split: bool, bounds: int) -> None:
@@ -354,7 +353,7 @@ class SurfacePass:
             self.raw_depth_sampler = 0
         for item in [*self.shadow_maps, *self.gpu_meshes]:
             item.release()
-        self.shadow_maps, self.gpu_meshes = [], []
+        self.shadow_maps, self.gpu_meshes, self.gpu_draws = [], [], []
 
     def __enter__(self) -> SurfacePass:
         return self

@@ -62,8 +62,9 @@ def _camera_scale(camera: Camera, height: int) -> tuple[float, bool]:
     return focal_pixels / 1000.0, False
 
 
-def skin_region(mesh_vertices: np.ndarray, model: np.ndarray, view_projection: np.ndarray, width: int,
-                height: int) -> tuple[int, int, int, int] | None:  # fmt: skip
+def skin_region(
+    mesh_vertices: np.ndarray, model: np.ndarray, view_projection: np.ndarray, width: int, height: int
+) -> tuple[int, int, int, int] | None:
     """The pixels the skin can cover: the box (x0, y0, x1, y1), GL window pixels from the bottom left, end exclusive,
     around the projected vertices of the skin mesh, grown by 2 pixels and clipped to the frame; None (the whole frame)
     when a vertex lies behind the camera. A triangle projects inside the box of its corners, so no skin pixel, nor
