@@ -19,6 +19,7 @@ import bench_inversion
 import bench_look
 import bench_render
 import bench_render_modes
+import bench_review
 import bench_run
 import bench_skin
 import numpy as np
@@ -28,7 +29,14 @@ COMMAND = ".venv/bin/python benchmarks/run_all.py"
 
 
 def _summary(
-    inversion: dict, fit: dict, render_rows: list, mode_rows: list, skin_rows: list, look: dict, run_rows: list
+    inversion: dict,
+    fit: dict,
+    render_rows: list,
+    mode_rows: list,
+    skin_rows: list,
+    look: dict,
+    run_rows: list,
+    review_rows: list,
 ) -> Table:
     rows = []
     for t in inversion["timings"]:
@@ -98,6 +106,9 @@ def _summary(
     for r in run_rows:
         rows.append([f"demo line end to end ({r[0]}): s", "< 120", r[2], r[5]])
         rows.append([f"demo line, cached re-run ({r[0]}): s", "< 3", r[4], r[6]])
+    for r in review_rows:
+        rows.append([f"shade review 10 x 8 x 3, tiles 256, end to end ({r[0]}): s", "< 60", r[2], r[5]])
+        rows.append([f"shade review, cached re-run ({r[0]}): s", "< 2", r[4], r[6]])
     return Table(
         "Targets", ["quantity", "target", "measured", "met"], rows, ["inversion and fit rows on noisy readings"]
     )
@@ -152,9 +163,10 @@ def main() -> None:
     skin_rows = measure("Makeup on skin", bench_skin)
     look = measure("The full look", bench_look)
     run_rows = measure("Product line", bench_run)
+    review_rows = measure("Shade review", bench_review)
     total = time.perf_counter() - started
 
-    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows)
+    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows, review_rows)
     summary.print()
     for _, tables, _ in parts:
         for table in tables:
@@ -165,7 +177,7 @@ def main() -> None:
         "# Benchmarks",
         "",
         "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering, skin, the",
-        "full look on the bundled head and product-line runs,",
+        "full look on the bundled head, product-line runs and the shade review,",
         "on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",

@@ -314,8 +314,21 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
-def _cmd_run(args: argparse.Namespace, console: Console) -> int:
+def _execute(plan, args: argparse.Namespace, console: Console, label: str):
+    """Run a planned graph of tasks as the command's options say, with a progress bar named ``label``."""
     from kmpipe.run.execute import execute
+
+    with _progress(console) as progress:
+        bar = progress.add_task(label, total=None)
+
+        def on_task(task, done: int, total: int) -> None:
+            progress.update(bar, completed=done, total=total, description=f"{label} (last: {task.id})")
+
+        return execute(plan, executor=args.executor, workers=args.workers, scheduler=args.scheduler,
+                       on_task=on_task, wait=args.wait)  # fmt: skip
+
+
+def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.run.planning import plan_run
 
     out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
@@ -323,20 +336,7 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     if args.dry_run:
         console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
         return EXIT_OK
-    with _progress(console) as progress:
-        bar = progress.add_task("tasks", total=None)
-
-        def on_task(task, done: int, total: int) -> None:
-            progress.update(bar, completed=done, total=total, description=f"tasks (last: {task.id})")
-
-        summary = execute(
-            plan,
-            executor=args.executor,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            on_task=on_task,
-            wait=args.wait,
-        )
+    summary = _execute(plan, args, console, "tasks")
     table = Table(title=f"kmpipe run: {escape(plan.recipe.info.line.name)}", title_justify="left")
     for column in ("product", "validation", "frames"):
         table.add_column(column)
@@ -368,6 +368,52 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
             errors.print(f"[bold red]kmpipe run: error:[/] {escape(line)}", highlight=False, soft_wrap=True)
         return EXIT_BAD_INPUT
     return EXIT_CHECK_FAILED if summary.skipped or "fail" in summary.verdicts.values() else EXIT_OK
+
+
+def _cmd_review(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.run.planning import plan_run
+
+    out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
+    plan = plan_run(args.recipe, out_dir, review_only=True)
+    if args.dry_run:
+        console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
+        return EXIT_OK
+    summary = _execute(plan, args, console, "review")
+    review = plan.tasks["review"]
+    console.print(
+        f"{sum(t.kind == 'tone' for t in plan.tasks.values())} skin tones x "
+        f"{len(plan.recipe.info.review.foundations)} foundations x {len(plan.recipe.info.review.illuminants)} "
+        f"illuminants in {summary.seconds:.1f} s: {summary.ran} tasks run, {summary.cached} cached",
+        highlight=False,
+        soft_wrap=True,
+    )
+    if summary.failed:
+        errors = Console(stderr=True, emoji=False)
+        for line in summary.failed:
+            errors.print(f"[bold red]kmpipe review: error:[/] {escape(line)}", highlight=False, soft_wrap=True)
+        return EXIT_BAD_INPUT
+    console.print(f"shade review: {out_dir / review.outputs[3]}", highlight=False, markup=False, soft_wrap=True)
+    breaks = review.result.get("breaks", 0)
+    if breaks:
+        console.print(f"{breaks} matches break under another light (listed in the review)", highlight=False)
+    return EXIT_OK
+
+
+def _graph_options(command: argparse.ArgumentParser) -> None:
+    """The options of a command that runs a recipe's graph of tasks (``run``, ``review``)."""
+    command.add_argument("-o", "--output", type=Path, help="output folder (default: out/ beside the recipe)")
+    command.add_argument("--dry-run", action="store_true", help="print what would run, what is cached and skipped")
+    command.add_argument("--executor", choices=("local", "dask"), default="local", help="where tasks run")
+    command.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler, e.g. tcp://HOST:8786 (with dask)")
+    command.add_argument(
+        "--workers", type=int, default=1, choices=range(1, 65), metavar="N",
+        help="processes (local: a pool when N > 1; dask: local cluster size); default 1",
+    )  # fmt: skip
+    command.add_argument(
+        "--wait",
+        action="store_true",
+        help="wait for another kmpipe run on the same output folder to finish (default: exit 2 naming it)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -557,22 +603,23 @@ def build_parser() -> argparse.ArgumentParser:
         "bad input.",
     )
     run.add_argument("recipe", type=Path, help="recipe file, TOML (docs/formats.md)")
-    run.add_argument("-o", "--output", type=Path, help="output folder (default: out/ beside the recipe)")
-    run.add_argument("--dry-run", action="store_true", help="print what would run, what is cached and skipped")
+    _graph_options(run)
     run.add_argument("--only", nargs="+", metavar="PRODUCT", help="these products (and the materials they use)")
-    run.add_argument("--executor", choices=("local", "dask"), default="local", help="where tasks run")
-    run.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler, e.g. tcp://HOST:8786 (with dask)")
-    run.add_argument(
-        "--workers", type=int, default=1, choices=range(1, 65), metavar="N",
-        help="processes (local: a pool when N > 1; dask: local cluster size); default 1",
-    )  # fmt: skip
     run.add_argument("--keep-going", action="store_true", help="render products that failed validation, marked")
-    run.add_argument(
-        "--wait",
-        action="store_true",
-        help="wait for another kmpipe run on the same output folder to finish (default: exit 2 naming it)",
-    )
     run.set_defaults(run=_cmd_run)
+
+    review = commands.add_parser(
+        "review",
+        help="the shade review of a recipe's [review]: every foundation on every skin tone under every illuminant",
+        description="Renders each foundation of [review] worn on each skin tone (built-in chart and complexion "
+        "samples, the lab's panel, any reflectance CSV) under each illuminant, with coverage, match and the best shade "
+        "per tone beside each tile, and the matches that break under another light (metamerism); writes review.png, "
+        "review.csv, review.json and review.html under the output folder's review/. Cached like kmpipe run (a new "
+        "tone renders only its row). Exit status 0: done; 2: bad input.",
+    )
+    review.add_argument("recipe", type=Path, help="recipe file with a [review] table, TOML (docs/formats.md)")
+    _graph_options(review)
+    review.set_defaults(run=_cmd_review)
     return parser
 
 

@@ -1,5 +1,6 @@
 """The README's demo command, end to end: a live emulated CS-2000 session, the demo product line (replayed sessions,
-fits, validation, turntables, sheet, report index) run twice (the second time fully cached), and an A/B render."""
+fits, validation, turntables, sheet, report index) run twice (the second time fully cached), an A/B render and the
+shade review of a foundation range."""
 
 from __future__ import annotations
 
@@ -53,3 +54,10 @@ def test_the_demo_measures_runs_the_line_and_renders(tmp_path):
     face = tomllib.loads((ROOT / "recipes" / "scenes" / "face.toml").read_text(encoding="utf-8"))
     assert len(list((out / "face" / "render" / "no_sss").glob("frame_*.exr"))) == face["turntable"]["frames"]
     assert (out / "face" / "render" / "ab_sss.png").is_file()
+    # The shade review: every shade of the range on every built-in tone under each light, all of it on the page.
+    review = tomllib.loads((ROOT / "recipes" / "review" / "recipe.toml").read_text(encoding="utf-8"))["review"]
+    document = json.loads((out / "review" / "review" / "review.json").read_text(encoding="utf-8"))
+    assert len(document["tones"]) == 8 and document["illuminants"] == review["illuminants"]
+    assert all(len(row["cells"]) == len(review["foundations"]) for row in document["tones"])
+    page = (out / "review" / "review" / "review.html").read_text(encoding="utf-8")
+    assert page.count("<tr>") >= len(document["tones"]) and (out / "review" / "review" / "review.png").is_file()

@@ -630,3 +630,19 @@ def test_an_unknown_illuminant_is_refused_alike_and_the_message_suggests_only_kn
         illuminant_sd("X99")
     suggested = re.findall(r"[A-Z]+[\w.-]*\d\w*|\bA\b", refused.value.message.split(";")[1])
     assert suggested and all(illuminant_key(s) in colour.SDS_ILLUMINANTS for s in suggested)
+
+
+def test_the_camera_aims_at_the_mesh_centre_moved_by_aim_mm(tmp_path, material_file):
+    from kmpipe.stages.render import renderer_scenes
+
+    centred = load_scene(write_scene(tmp_path, material_file))
+    [plain] = renderer_scenes(centred, plan_scene(centred), [0.0])
+    aimed = load_scene(write_scene(tmp_path, material_file, "aim_mm = [12.0, -5.0, 3.0]\n"))
+    [moved] = renderer_scenes(aimed, plan_scene(aimed), [0.0])
+    offset = np.array([12.0, -5.0, 3.0])
+    np.testing.assert_allclose(np.subtract(moved.camera.target, plain.camera.target), offset, atol=1e-9)
+    np.testing.assert_allclose(np.subtract(moved.camera.eye, plain.camera.eye), offset, atol=1e-9)  # same direction
+    path = write_scene(tmp_path, material_file, "aim_mm = [1.0, 2.0]\n")
+    with pytest.raises(InputError) as err:
+        load_scene(path)
+    assert err.value.field.startswith("camera.aim_mm")

@@ -57,6 +57,37 @@ class ValidationInfo(StrictModel):
         return names
 
 
+class ReviewInfo(StrictModel):
+    """``[review]``: the shade review (kmpipe.stages.review): foundations (product names of the line, each worn at the
+    thickness of its own layer), skin tones (kmpipe.formats.skin_tones), illuminants, the reference illuminant among
+    them and the Delta E 2000 under which a pair matches."""
+
+    foundations: list[str] = Field(min_length=1)
+    tones: list[str] = Field(default=["builtin"], min_length=1)
+    illuminants: list[str] = Field(default=["D65", "A", "FL11"], min_length=1, max_length=8)
+    reference: str = "D65"
+    thickness: str | None = None  # worn thickness of every foundation (default: each product's own layer's)
+    match_delta_e: float = Field(default=2.0, gt=0.0, le=50.0)
+    tile: int = Field(default=256, ge=64, le=1024)
+
+    @field_validator("illuminants")
+    @classmethod
+    def _known_illuminants(cls, names: list[str]) -> list[str]:
+        for name in names:
+            illuminant_key(name)
+        if len({illuminant_key(n) for n in names}) != len(names):
+            raise ValueError(f"illuminants are listed once each, got {', '.join(names)}")
+        return names
+
+    @model_validator(mode="after")
+    def _reference_among_them(self) -> ReviewInfo:
+        keys = [illuminant_key(n) for n in self.illuminants]
+        if illuminant_key(self.reference) not in keys:
+            raise ValueError(f"the reference illuminant {self.reference!r} must be one of the illuminants "
+                             f"({', '.join(self.illuminants)})")  # fmt: skip
+        return self
+
+
 class ReplaySource(StrictModel):
     log: str = Field(min_length=1)
     plan: str = Field(min_length=1)
@@ -106,6 +137,7 @@ class OutputsInfo(StrictModel):
     reports: str = Field(default="reports", min_length=1)
     sheet: str | None = "sheet.png"
     sheet_columns: int = Field(default=4, ge=1, le=36)
+    review: str = Field(default="review", min_length=1)
 
     @field_validator("sheet")
     @classmethod
@@ -136,6 +168,7 @@ class RecipeFile(StrictModel):
     output: dict[str, Any] | None = None
     product: list[ProductInfo] = Field(min_length=1)
     outputs: OutputsInfo = OutputsInfo()
+    review: ReviewInfo | None = None
 
     def template(self) -> dict:
         """The scene-file tables the recipe gives every product."""
@@ -282,11 +315,72 @@ def load_recipe(path: str | Path) -> Recipe:
                     ("product", i, "layer", j, "material")))  # fmt: skip
         if product.layer:
             _check_product_scene(recipe, i)
-    for key in ("frames", "reports", "sheet"):
+    if info.review is not None:
+        _check_review(recipe)
+    for key in ("frames", "reports", "sheet", "review"):
         value = getattr(info.outputs, key)
         if value is not None:
             inside(Path("."), value, recipe.where(("outputs", key)))
     return recipe
+
+
+def review_foundations(recipe: Recipe) -> list[tuple[str, str, float]]:
+    """The review's foundations: (product, shade, thickness in mm), the thickness that of the product's own layer
+    (its ``thickness``, or a thickness map's ``max``)."""
+    from kmpipe.formats.manifest import parse_thickness_mm
+
+    found = []
+    for i, name in enumerate(recipe.info.review.foundations):
+        at = recipe.where(("review", "foundations", i))
+        if name not in {p.name for p in recipe.info.product}:
+            raise InputError(f"names {name!r}, which is not a product of the recipe", **at)
+        product = recipe.product(name)
+        own = [layer for layer in product.layer if layer.get("material") == SELF]
+        if product.source is None or not own:
+            raise InputError(f"names {name!r}, which has no material of its own in its layer stack: a foundation "
+                             "of the review needs both (its thickness is its own layer's)", **at)  # fmt: skip
+        layer = own[0]
+        given = recipe.info.review.thickness or (
+            layer.get("thickness")
+            if layer.get("thickness") is not None
+            else (layer.get("thickness_map") or {}).get("max")
+        )
+        try:
+            thickness = parse_thickness_mm(given, allow_zero=False)
+        except (InputError, TypeError, ValueError):
+            raise InputError(f"{name!r}: its own layer gives no thickness the review can wear it at (a thickness, or "
+                             "a thickness map's max, above 0)", **at) from None  # fmt: skip
+        found.append((name, product.shade or name, thickness))
+    names = [f[0] for f in found]
+    if len(set(names)) != len(names):
+        raise InputError("lists a foundation twice", **recipe.where(("review", "foundations")))
+    return found
+
+
+def _check_review(recipe: Recipe) -> None:
+    """[review]: known foundations with their thickness; tone sources that exist (their spectra are read by the
+    review's tasks, on the materials' grid)."""
+    if recipe.info.review.thickness is not None:
+        from kmpipe.formats.manifest import parse_thickness_mm
+
+        try:
+            parse_thickness_mm(recipe.info.review.thickness, allow_zero=False)
+        except (InputError, ValueError) as err:
+            raise InputError(getattr(err, "message", str(err)), **recipe.where(("review", "thickness"))) from None
+    review_foundations(recipe)
+    for i, source in enumerate(recipe.info.review.tones):
+        kind, _, rest = source.partition(":")
+        at = recipe.where(("review", "tones", i))
+        if kind == "builtin":
+            from kmpipe.formats.skin_tones import BUILTIN
+
+            if rest and rest not in BUILTIN:
+                raise InputError(f"no built-in skin tone {rest!r}; there are {', '.join(BUILTIN)}", **at)
+        elif kind.lower().endswith((".csv", ".toml")):
+            _existing(recipe, kind, ("review", "tones", i))
+        else:
+            raise InputError(f"unknown skin-tone source {source!r}: expected 'builtin', 'builtin:ID', 'FILE.csv', "
+                             "'FILE.csv:COLUMN' or a panel 'FILE.toml'", **at)  # fmt: skip
 
 
 def _thresholds(info: ValidationInfo, path: Path, text: str) -> Thresholds:

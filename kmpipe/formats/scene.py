@@ -177,12 +177,17 @@ class OutputInfo(StrictModel):
     fps: int = Field(default=24, ge=1, le=120)  # frames per second of the videos
 
 
+_AIM = Annotated[float, Field(ge=-MAX_DISTANCE_MM, le=MAX_DISTANCE_MM)]
+
+
 class CameraInfo(StrictModel):
     azimuth_deg: float = Field(default=0.0, ge=-360.0, le=360.0)
     elevation_deg: float = Field(default=0.0, gt=-90.0, lt=90.0)
     distance_mm: float | None = Field(default=None, gt=0.0, le=MAX_DISTANCE_MM)
     projection: Literal["perspective", "orthographic"] = "perspective"
     fov_deg: float = Field(default=30.0, gt=0.0, lt=180.0)
+    # the point looked at, from the centre of the placed mesh (mm, world axes: x right, y up, z to the front)
+    aim_mm: tuple[_AIM, _AIM, _AIM] = (0.0, 0.0, 0.0)
 
 
 class TurntableInfo(StrictModel):

@@ -59,24 +59,42 @@ def cmfs(observer: str) -> colour.MultiSpectralDistributions:
     return colour.MSDS_CMFS[OBSERVERS[observer]]
 
 
+#: XYZ weights per (grid, illuminant, observer) in this process (:func:`xyz_weights`).
+_WEIGHTS: dict[tuple[bytes, str, str], np.ndarray] = {}
+
+
+def xyz_weights(wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
+    """The weights W (n_wavelengths x 3) with XYZ = R @ W (Y = 100 for the perfect white) on a grid: colour-science's
+    integration (``colour.msds_to_XYZ(method="Integration")``) of the grid's unit impulses, which is exact because the
+    integration is linear in R. Computed once per grid, illuminant and observer in a process (read-only)."""
+    wavelengths = np.ascontiguousarray(wavelengths, dtype=np.float64)
+    key = (wavelengths.tobytes(), str(illuminant), str(observer))
+    found = _WEIGHTS.get(key)
+    if found is None:
+        msds = colour.MultiSpectralDistributions(np.eye(len(wavelengths)), wavelengths)
+        with warnings.catch_warnings():
+            # colour warns that it aligns the CMFs and illuminant to the spectra's shape: that is intended.
+            warnings.simplefilter("ignore", colour.utilities.ColourWarning)
+            warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
+            XYZ = colour.msds_to_XYZ(
+                msds, cmfs=cmfs(observer), illuminant=illuminant_sd(illuminant), method="Integration"
+            )
+        found = np.asarray(XYZ, dtype=np.float64).reshape(len(wavelengths), 3)
+        found.setflags(write=False)
+        _WEIGHTS[key] = found
+    return found
+
+
 def reflectance_to_XYZ(reflectance, wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
     """Tristimulus values (Y = 100 for the perfect white) of reflectance spectra, shape (..., 3).
 
     X = k sum R(l) S(l) xbar(l), k = 100 / sum S(l) ybar(l) (ASTM E308 weighting), by
-    ``colour.msds_to_XYZ(method="Integration")`` on the spectra's grid. This is thesis eq. A.1, thesis eq. A.2 and
-    thesis eq. A.3 weighted by the illuminant S(l): the thesis integrates R(l) xbar(l) alone (illuminant E,
-    unnormalised).
+    ``colour.msds_to_XYZ(method="Integration")`` on the spectra's grid (through :func:`xyz_weights`). This is thesis
+    eq. A.1, thesis eq. A.2 and thesis eq. A.3 weighted by the illuminant S(l): the thesis integrates R(l) xbar(l)
+    alone (illuminant E, unnormalised).
     """
     R = np.asarray(reflectance, dtype=np.float64)
-    wavelengths = np.asarray(wavelengths, dtype=np.float64)
-    flat = R.reshape(-1, R.shape[-1])
-    msds = colour.MultiSpectralDistributions(flat.T, wavelengths)
-    with warnings.catch_warnings():
-        # colour warns that it aligns the CMFs and illuminant to the spectra's shape: that is intended.
-        warnings.simplefilter("ignore", colour.utilities.ColourWarning)
-        warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
-        XYZ = colour.msds_to_XYZ(msds, cmfs=cmfs(observer), illuminant=illuminant_sd(illuminant), method="Integration")
-    return np.asarray(XYZ).reshape(*R.shape[:-1], 3)
+    return R @ xyz_weights(wavelengths, illuminant, observer)
 
 
 def white_XYZ(wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:

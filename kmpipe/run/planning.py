@@ -22,7 +22,9 @@ from kmpipe.run.tasks import (
     do_plan,
     do_render,
     do_reports,
+    do_review,
     do_sheet,
+    do_tone,
     do_validate,
     do_video,
     remember_recipe,
@@ -159,9 +161,16 @@ class _Claims:
 
 
 def plan_run(
-    recipe_path: str | Path, out_dir: str | Path, *, only: Sequence[str] = (), keep_going: bool = False
+    recipe_path: str | Path,
+    out_dir: str | Path,
+    *,
+    only: Sequence[str] = (),
+    keep_going: bool = False,
+    review_only: bool = False,
 ) -> RunPlan:
     """The task graph of a recipe: keys from file contents and settings, cached tasks marked.
+
+    ``review_only`` (``kmpipe review``): the shade review of ``[review]`` and the materials it needs, no turntables.
 
     Every path the tasks write is checked (see :class:`_Claims`): inside the output folder, resolved, and no two
     tasks' outputs colliding. Nothing is written.
@@ -186,7 +195,12 @@ def plan_run(
     if unknown:
         raise InputError(f"names no product of the recipe: {', '.join(unknown)} (it has {', '.join(names)})",
                          field="--only")  # fmt: skip
+    if review_only and info.review is None:
+        raise InputError("has no [review] table: give its foundations (products of the line), tones and illuminants",
+                         path=recipe.path, field="review")  # fmt: skip
     wanted = set(only) or set(names)
+    if review_only:
+        wanted = set(info.review.foundations)
     # A product needs the materials of the products in its stack.
     for name in list(wanted):
         for layer in by_name[name].layer:
@@ -259,7 +273,7 @@ def plan_run(
 
     rows = []
     for product in info.product:
-        if not product.layer or product.name not in (set(only) or set(names)):
+        if review_only or not product.layer or product.name not in (set(only) or set(names)):
             continue
         owners = [product.name if layer.get("material") == "self" else layer["material"] for layer in product.layer]
         materials = {o: str(out_dir / PRODUCTS / slug(o) / "material.json") for o in owners}
@@ -309,9 +323,14 @@ def plan_run(
     validations = [t for t in tasks.values() if t.kind == "validate"]
     if validations:
         entries = [(str(out_dir / t.outputs[0]), str(out_dir / t.outputs[1])) for t in validations]
+        links = []
+        if info.review is not None and (review_only or not only):
+            page = inside(out_dir, outputs.review, recipe.where(("outputs", "review"))) / "review.html"
+            links = [("Shade review: every foundation on every skin tone, under every light", str(page))]
         add(Task("reports", "", None, tuple(t.id for t in validations),
-                 task_key("reports", [t.key for t in validations]), (rel(reports_dir / "index.html"),), do_reports,
-                 {"entries": entries, "out": str(reports_dir)}, (rel(reports_dir / "summary.json"),)),
+                 task_key("reports", [t.key for t in validations], links), (rel(reports_dir / "index.html"),),
+                 do_reports, {"entries": entries, "out": str(reports_dir), "links": links},
+                 (rel(reports_dir / "summary.json"),)),
             "the index of the reports", "outputs.reports")  # fmt: skip
         claims.file(rel(reports_dir / "summary.json"), "reports", "the index of the reports", "outputs.reports")
     if outputs.sheet is not None and rows:
@@ -333,9 +352,46 @@ def plan_run(
                             "captions": stills}),
             "the contact sheet", "outputs.sheet")  # fmt: skip
 
+    if info.review is not None and (review_only or not only):
+        _plan_review(recipe, out_dir, claims, add, material_key, rel)
     plan = RunPlan(recipe, out_dir, tasks, keep_going)
     mark_cached(plan)
     return plan
+
+
+def _plan_review(recipe: Recipe, out_dir: Path, claims: _Claims, add, material_key: dict, rel) -> None:
+    """The shade review's tasks: a row per skin tone (keyed by the tone's own spectrum, so that a new tone renders
+    only its row), then the matrix."""
+    from kmpipe.formats.recipe import review_foundations
+    from kmpipe.formats.skin_tones import tone_digests
+
+    review = recipe.info.review
+    folder = inside(out_dir, recipe.info.outputs.review, recipe.where(("outputs", "review")))
+    claims.top(rel(folder), "the review folder", "outputs.review")
+    foundations = [{"name": name, "shade": shade, "material": str(out_dir / PRODUCTS / slug(name) / "material.json"),
+                    "thickness_mm": thickness} for name, shade, thickness in review_foundations(recipe)]  # fmt: skip
+    deps = tuple(f"material:{slug(f['name'])}" for f in foundations)
+    upstream = [material_key[f["name"]] for f in foundations]
+    settings = [[f["shade"], f["thickness_mm"]] for f in foundations], review.illuminants, review.reference
+    rows, keys = [], []
+    for source, tone, digest in tone_digests(review.tones, recipe.base, recipe.where(("review", "tones"))):
+        out = folder / "tones" / tone
+        claims.folder(rel(out), f"the review's row of {tone}", "outputs.review", own=True)
+        key = task_key("tone", digest, upstream, settings, review.match_delta_e, review.tile)
+        add(Task("tone", tone, None, deps, key, (rel(out / "row.json"),), do_tone,
+                 {"tone_source": source, "tone_id": tone, "base": str(recipe.base), "foundations": foundations,
+                  "illuminants": review.illuminants, "reference": review.reference,
+                  "threshold": review.match_delta_e, "out": str(out), "tile": review.tile},
+                 (rel(out),)), f"the review's row of {tone}", "outputs.review")  # fmt: skip
+        rows.append(str(out / "row.json"))
+        keys.append(key)
+    files = [folder / f"review.{ext}" for ext in ("json", "csv", "png", "html")]
+    header = f"{recipe.info.line.name} · shade review · {datetime.date.today().isoformat()}"
+    add(Task("review", "", None, tuple(f"tone:{Path(r).parent.name}" for r in rows), task_key("review", keys),
+             tuple(rel(f) for f in files), do_review,
+             {"rows": rows, "out": str(folder), "line": recipe.info.line.name, "illuminants": review.illuminants,
+              "reference": review.reference, "threshold": review.match_delta_e, "header": header}),
+        "the shade review", "outputs.review")  # fmt: skip
 
 
 def _sheet_cell(recipe: Recipe, columns: int, sheet_rows: int, reads: int) -> int:

@@ -21,8 +21,9 @@ PLAN_FILE = "plan.json"
 
 
 #: What a task can do: make a product's material (measure, replay or fit), validate it, plan its render, render frames
-#: of its turntable, make the turntable's videos; index the line's reports, lay out its contact sheet.
-KINDS = ("material", "validate", "plan", "render", "video", "reports", "sheet")
+#: of its turntable, make the turntable's videos; index the line's reports, lay out its contact sheet; a skin tone's
+#: row of the shade review, the review's matrix.
+KINDS = ("material", "validate", "plan", "render", "video", "reports", "sheet", "tone", "review")
 
 
 def task_key(*parts) -> str:
@@ -179,11 +180,11 @@ def do_video(frames: list[str], out: str, formats: list[str], fps: int) -> dict:
     return {"videos": [str(p) for p in write_turntable_videos(frames, out, formats=formats, fps=fps)]}
 
 
-def do_reports(entries: list[tuple[str, str]], out: str) -> dict:
-    """The validation index over (validation.json, report.html) pairs."""
+def do_reports(entries: list[tuple[str, str]], out: str, links: list[tuple[str, str]] = ()) -> dict:
+    """The validation index over (validation.json, report.html) pairs, linking ``links`` (title, page)."""
     from kmpipe.stages.validate import index_reports
 
-    return {"index": str(index_reports(entries, out))}
+    return {"index": str(index_reports(entries, out, links))}
 
 
 def do_sheet(rows: list[dict], out: str, header: str, columns: int, cell: int, captions: bool = False) -> dict:
@@ -196,3 +197,17 @@ def do_sheet(rows: list[dict], out: str, header: str, columns: int, cell: int, c
     frames = [f for row in rows for f in row["frames"]]
     write_contact_sheet(frames, out, columns=columns, header=header, cell=cell, captions=captions)
     return {"sheet": out}
+
+
+def do_tone(**row) -> dict:
+    """A skin tone's row of the shade review (:func:`kmpipe.stages.review.review_row`)."""
+    from kmpipe.stages.review import review_row
+
+    return review_row(**row)
+
+
+def do_review(**review) -> dict:
+    """The shade review's matrix from its rows (:func:`kmpipe.stages.review_page.write_review`)."""
+    from kmpipe.stages.review_page import write_review
+
+    return write_review(**review)

@@ -41,7 +41,12 @@ from renderer.tone_map import tone_map
 
 
 def renderer_scenes(
-    scene: Scene, plan: ScenePlan, angles_deg: Sequence[float], *, scattering: bool = True
+    scene: Scene,
+    plan: ScenePlan,
+    angles_deg: Sequence[float],
+    *,
+    scattering: bool = True,
+    occlusion: np.ndarray | None = None,
 ) -> list[RendererScene]:
     """The renderer's scene of each turntable angle (degrees) of ``scene`` rendered as ``plan`` says.
 
@@ -50,7 +55,9 @@ def renderer_scenes(
     planned tables, or a :class:`~renderer.stack.Precomposed` stack in exact mode; built once), the films' lobes,
     the lights with the plan's shadows, the camera looking at the centre of the placed mesh, a ground or a backdrop
     (:mod:`kmpipe.stages.staging`), the environment light and, where the plan says, its ambient occlusion, the skin's
-    lobe and scattering from the plan (``scattering=False``: none).
+    lobe and scattering from the plan (``scattering=False``: none). ``occlusion``: the mesh's ambient occlusion
+    baked before (:func:`kmpipe.stages.staging.occlusion` of a scene with the same mesh, place and backdrop), or
+    None to bake it here.
 
     >>> import kmpipe, pathlib, tempfile
     >>> from kmpipe.formats.scene import load_scene
@@ -83,7 +90,7 @@ def renderer_scenes(
         **antialiasing.renderer_fields(plan.antialiasing, info.output.antialias),
         "background": staging.background(scene),
         "environment": staging.environment(scene),
-        "occlusion": staging.occlusion(scene) if plan.ambient_occlusion else None,
+        "occlusion": (staging.occlusion(scene) if occlusion is None else occlusion) if plan.ambient_occlusion else None,
         "normal_map": staging.normal_map(scene),
         "substrate_roughness": scene.roughness,
     }
@@ -188,9 +195,10 @@ def _precompose(scene: Scene, substrate: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def _camera(scene: Scene) -> OrthographicCamera | PerspectiveCamera:
-    """The scene's camera, looking at the centre of the (placed) mesh."""
+    """The scene's camera, looking at the centre of the (placed) mesh moved by the camera's ``aim_mm``."""
     centre, radius, _ = placed_bounds(scene)
     info = scene.info.camera
+    centre = centre + np.asarray(info.aim_mm, dtype=float)
     azimuth, elevation = math.radians(info.azimuth_deg), math.radians(info.elevation_deg)
     direction = np.array(
         [math.cos(elevation) * math.sin(azimuth), math.sin(elevation), math.cos(elevation) * math.cos(azimuth)]

@@ -119,9 +119,12 @@ def write_report(report: SampleReport, folder: str | Path) -> ReportWritten:
     return ReportWritten(report, write_sample_report(report, folder), folder / "validation.json")
 
 
-def index_reports(entries: Sequence[tuple[str | Path, str | Path]], out_dir: str | Path) -> Path:
+def index_reports(
+    entries: Sequence[tuple[str | Path, str | Path]], out_dir: str | Path, links: Sequence[tuple[str, str]] = ()
+) -> Path:
     """Write ``index.html`` and ``summary.json`` into ``out_dir`` over the reports given as (validation.json,
-    report.html) pairs, failing samples first; return the index's path.
+    report.html) pairs, failing samples first, with ``links`` (title, page) to other pages of the run (the shade
+    review); return the index's path.
 
     >>> import tempfile, pathlib, json
     >>> folder = pathlib.Path(tempfile.mkdtemp())
@@ -133,7 +136,7 @@ def index_reports(entries: Sequence[tuple[str | Path, str | Path]], out_dir: str
     ('index.html', 'report.html')
     """
     documents = [(json.loads(files.read_text(doc, "JSON")), Path(page)) for doc, page in entries]
-    return write_index(documents, Path(out_dir))
+    return write_index(documents, Path(out_dir), [(title, Path(page)) for title, page in links])
 
 
 def validate_materials(

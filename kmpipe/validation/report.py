@@ -20,6 +20,7 @@ import itertools
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
 from urllib.parse import quote
@@ -393,10 +394,10 @@ def write_sample_report(report: SampleReport, out_dir: Path) -> Path:
     return path
 
 
-def write_index(entries: list[tuple[dict, Path]], out_dir: Path) -> Path:
+def write_index(entries: list[tuple[dict, Path]], out_dir: Path, links: Sequence[tuple[str, Path]] = ()) -> Path:
     """Write ``index.html`` and ``summary.json`` for a batch into ``out_dir``, failing samples first; ``entries``
-    pair each report's document (:func:`report_to_dict`, as in validation.json) with its report.html. Return the
-    index path."""
+    pair each report's document (:func:`report_to_dict`, as in validation.json) with its report.html; ``links``
+    (title, page) are listed above the table (the line's shade review). Return the index path."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     ordered = sorted(entries, key=lambda e: (-SEVERITIES.index(e[0]["verdict"]), e[0]["sample"]))
@@ -416,7 +417,12 @@ def write_index(entries: list[tuple[dict, Path]], out_dir: Path) -> Path:
             f'<td><a href="{html.escape(quote(link))}">{html.escape(link)}</a></td></tr>'
         )
     counts = ", ".join(f"{sum(e[0]['verdict'] == v for e in entries)} {v}" for v in reversed(SEVERITIES))
-    body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n" + _table(
+    pages = "".join(
+        f'<p><a href="{html.escape(quote(Path(os.path.relpath(Path(page).resolve(), out_dir.resolve())).as_posix()))}">'
+        f"{html.escape(title)}</a></p>\n"
+        for title, page in links
+    )
+    body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n{pages}" + _table(
         ["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows
     )
     write_text_atomically(out_dir / "summary.json", json.dumps(summary, indent=1, allow_nan=False) + "\n")

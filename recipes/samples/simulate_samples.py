@@ -142,94 +142,99 @@ def write_emulator_files(folder: Path, name: str, spec: dict, backings: dict, K:
     )
 
 
-def main() -> None:
-    pigments = rit_pigments().on(WAVELENGTHS)
+def write_sample(folder: Path, name: str, spec: dict, K: np.ndarray, S: np.ndarray, seed: int) -> None:
+    """A simulated sample in ``folder``: its readings (white, backings, masstone and films), manifest, truth and the
+    emulator's files, from K and S (1/mm, on WAVELENGTHS), noise drawn with ``seed``."""
+    rng = np.random.default_rng(seed)
     d55 = colour.SDS_ILLUMINANTS["D55"].copy().align(colour.SpectralShape(380, 780, 1)).values
     light = GAIN * d55
     backings = cards(WAVELENGTHS)
+
+    def measure(reflectance: np.ndarray) -> np.ndarray:
+        signal = light * reflectance
+        noise = rng.normal(0.0, 1.0, signal.shape) * (RELATIVE_NOISE * signal + ABSOLUTE_NOISE)
+        return signal + DARK + noise
+
+    folder.mkdir(exist_ok=True)
+    serial = "1234567"
+    white = measure(baso4_typical(WAVELENGTHS))
+    dark = DARK + rng.normal(0.0, ABSOLUTE_NOISE / 4, WAVELENGTHS.shape)
+    write_spectra_csv(
+        SpectralTable(
+            WAVELENGTHS,
+            None,
+            ("baso4", "dark"),
+            np.array([white, np.abs(dark)]),
+            header(name, "BaSO4 white standard and a dark reading", serial),
+        ),
+        folder / "white.csv",
+    )
+    write_spectra_csv(
+        SpectralTable(
+            WAVELENGTHS,
+            None,
+            ("black", "white"),
+            np.array([measure(backings["black"]), measure(backings["white"])]),
+            header(name, "bare black and white backings of the drawdown card", serial),
+        ),
+        folder / "backings.csv",
+    )
+    columns, thickness, grounds = ["masstone"], [np.inf], [np.zeros_like(WAVELENGTHS)]
+    for um in spec["thicknesses_um"]:
+        for over in ("black", "white"):
+            columns.append(f"film_{um}um_over_{over}")
+            thickness.append(um / 1000.0)
+            grounds.append(backings[over])
+    reflectance = predict_readings(K, S, np.array(thickness), np.array(grounds))
+    write_spectra_csv(
+        SpectralTable(
+            WAVELENGTHS,
+            None,
+            tuple(columns),
+            np.array([measure(r) for r in reflectance]),
+            header(name, f"{spec['product']}: masstone and drawdowns", serial),
+        ),
+        folder / f"{name}.csv",
+    )
+    films = "\n".join(
+        f'[[film]]\nfile = "{name}.csv"\ncolumn = "{c}"\n'
+        f'over = "{c.rsplit("_", 1)[1]}"\nthickness = "{c.split("_")[1][:-2]} um"\n'
+        for c in columns[1:]
+    )
+    (folder / "manifest.toml").write_text(
+        f"# SIMULATED example sample (see simulate_samples.py): CS-2000 radiance under D55.\n"
+        f'[sample]\nname = "{name}"\nproduct = "{spec["product"]}"\nkind = "{spec["kind"]}"\n\n'
+        f'[white]\nfile = "white.csv"\ncolumn = "baso4"\ncertified = "builtin:baso4"\n'
+        f'dark = {{ file = "white.csv", column = "dark" }}\n\n'
+        f'[fit]\nmethod = "lsq"\ngrid = "380:780:5"\n\n'
+        f'[[backing]]\nname = "black"\nfile = "backings.csv"\ncolumn = "black"\n\n'
+        f'[[backing]]\nname = "white"\nfile = "backings.csv"\ncolumn = "white"\n\n'
+        f'[[masstone]]\nfile = "{name}.csv"\ncolumn = "masstone"\n\n{films}',
+        encoding="utf-8",
+    )
+    (folder / "truth.json").write_text(
+        json.dumps(
+            {
+                "note": "SIMULATED: the K and S the measurements were generated from",
+                "mix": spec["mix"],
+                "wavelengths_nm": WAVELENGTHS.tolist(),
+                "K_per_mm": K.tolist(),
+                "S_per_mm": S.tolist(),
+            },
+            indent=1,
+        )
+        + "\n",
+        encoding="utf-8",
+    )
+    write_emulator_files(folder, name, spec, backings, K, S)
+    print(f"wrote {folder}")
+
+
+def main() -> None:
+    pigments = rit_pigments().on(WAVELENGTHS)
     for index, (name, spec) in enumerate(SAMPLES.items()):
-        rng = np.random.default_rng(1000 + index)
         K, S = pigments.mixture(spec["mix"], PER_MM)
-
-        def measure(reflectance: np.ndarray, rng: np.random.Generator = rng) -> np.ndarray:
-            signal = light * reflectance
-            noise = rng.normal(0.0, 1.0, signal.shape) * (RELATIVE_NOISE * signal + ABSOLUTE_NOISE)
-            return signal + DARK + noise
-
-        folder = HERE / name
-        folder.mkdir(exist_ok=True)
-        serial = "1234567"
-        white = measure(baso4_typical(WAVELENGTHS))
-        dark = DARK + rng.normal(0.0, ABSOLUTE_NOISE / 4, WAVELENGTHS.shape)
-        write_spectra_csv(
-            SpectralTable(
-                WAVELENGTHS,
-                None,
-                ("baso4", "dark"),
-                np.array([white, np.abs(dark)]),
-                header(name, "BaSO4 white standard and a dark reading", serial),
-            ),
-            folder / "white.csv",
-        )
-        write_spectra_csv(
-            SpectralTable(
-                WAVELENGTHS,
-                None,
-                ("black", "white"),
-                np.array([measure(backings["black"]), measure(backings["white"])]),
-                header(name, "bare black and white backings of the drawdown card", serial),
-            ),
-            folder / "backings.csv",
-        )
-        columns, thickness, grounds = ["masstone"], [np.inf], [np.zeros_like(WAVELENGTHS)]
-        for um in spec["thicknesses_um"]:
-            for over in ("black", "white"):
-                columns.append(f"film_{um}um_over_{over}")
-                thickness.append(um / 1000.0)
-                grounds.append(backings[over])
-        reflectance = predict_readings(K, S, np.array(thickness), np.array(grounds))
-        write_spectra_csv(
-            SpectralTable(
-                WAVELENGTHS,
-                None,
-                tuple(columns),
-                np.array([measure(r) for r in reflectance]),
-                header(name, f"{spec['product']}: masstone and drawdowns", serial),
-            ),
-            folder / f"{name}.csv",
-        )
-        films = "\n".join(
-            f'[[film]]\nfile = "{name}.csv"\ncolumn = "{c}"\n'
-            f'over = "{c.rsplit("_", 1)[1]}"\nthickness = "{c.split("_")[1][:-2]} um"\n'
-            for c in columns[1:]
-        )
-        (folder / "manifest.toml").write_text(
-            f"# SIMULATED example sample (see simulate_samples.py): CS-2000 radiance under D55.\n"
-            f'[sample]\nname = "{name}"\nproduct = "{spec["product"]}"\nkind = "{spec["kind"]}"\n\n'
-            f'[white]\nfile = "white.csv"\ncolumn = "baso4"\ncertified = "builtin:baso4"\n'
-            f'dark = {{ file = "white.csv", column = "dark" }}\n\n'
-            f'[fit]\nmethod = "lsq"\ngrid = "380:780:5"\n\n'
-            f'[[backing]]\nname = "black"\nfile = "backings.csv"\ncolumn = "black"\n\n'
-            f'[[backing]]\nname = "white"\nfile = "backings.csv"\ncolumn = "white"\n\n'
-            f'[[masstone]]\nfile = "{name}.csv"\ncolumn = "masstone"\n\n{films}',
-            encoding="utf-8",
-        )
-        (folder / "truth.json").write_text(
-            json.dumps(
-                {
-                    "note": "SIMULATED: the K and S the measurements were generated from",
-                    "mix": spec["mix"],
-                    "wavelengths_nm": WAVELENGTHS.tolist(),
-                    "K_per_mm": K.tolist(),
-                    "S_per_mm": S.tolist(),
-                },
-                indent=1,
-            )
-            + "\n",
-            encoding="utf-8",
-        )
-        write_emulator_files(folder, name, spec, backings, K, S)
-        print(f"wrote {folder}")
+        write_sample(HERE / name, name, spec, K, S, 1000 + index)
 
 
 if __name__ == "__main__":
