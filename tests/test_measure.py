@@ -761,3 +761,34 @@ def test_kmpipe_run_refuses_to_replay_another_samples_log(tmp_path):
         do_material("replay", {"plan": str(PLAN), "log": str(DEMO_SESSIONS / "L1.jsonl")}, str(tmp_path / "F1"))
     assert caught.value.path == DEMO_SESSIONS / "L1.jsonl"
     assert not (tmp_path / "F1" / "material.json").exists() and not (tmp_path / "F1" / "session").exists()
+
+
+def test_a_skin_panel_is_measured_like_any_reading_and_becomes_review_tones(tmp_path, capsys):
+    from kmpipe.formats.skin_tones import read_tones
+    from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN.read_text(encoding="utf-8") + '\n[[skin]]\nname = "V07"\nsite = "cheek"\n\n[[skin]]\n'
+                    'name = "V08"\n', encoding="utf-8")  # fmt: skip
+    samples = read_spectra_csv(F1 / "emulator_reflectance.csv")
+    w = samples.wavelengths
+    skins = {"skin_v07": 0.2 + 0.4 / (1.0 + np.exp(-(w - 590.0) / 25.0)), "skin_v08": 0.1 + 0.2 * (w - 380) / 400}
+    columns = {c: samples.column(c) for c in samples.columns} | skins
+    table = SpectralTable(w, None, tuple(columns), np.array(list(columns.values())), {"quantity": "reflectance"})
+    write_spectra_csv(table, tmp_path / "reflectance.csv")
+    script = script_settings() | {"file": "reflectance.csv", "noise": 0.0}
+    script["sequence"] = [*script["sequence"], "skin_v07", "skin_v08"]
+    (tmp_path / "emulator.toml").write_text("[samples]\n" + "".join(
+        f"{k} = {json.dumps(v)}\n" for k, v in script.items()), encoding="utf-8")  # fmt: skip
+    folder = tmp_path / "session"
+    with emulator_from_script(tmp_path / "emulator.toml", time_scale=TIME_SCALE, link=tmp_path / "cs2000") as emulator:
+        status, err = measure(capsys, emulator.link, folder, plan=plan)
+    assert status == 0, err
+    reflectance = read_spectra_csv(folder / "reflectance.csv")
+    assert reflectance.metadata["site.skin_V07"] == "cheek" and "site.skin_V08" not in reflectance.metadata
+    for name, column in (("skin_V07", "skin_v07"), ("skin_V08", "skin_v08")):
+        np.testing.assert_allclose(reflectance.column(name), skins[column], rtol=1e-6)  # as the instrument sends it
+    manifest = tomllib.loads((folder / "manifest.toml").read_text(encoding="utf-8"))
+    assert "skin" not in manifest and len(manifest["film"]) == 4  # the sample's fit is as before
+    tones = read_tones(["reflectance.csv:skin_V07"], np.arange(380.0, 781.0, 5.0), folder, {})
+    assert [(t.id, t.name, t.site, t.kind) for t in tones] == [("skin-v07", "skin_V07", "cheek", "measured")]

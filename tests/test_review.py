@@ -226,3 +226,58 @@ def test_a_recipe_without_a_review_and_a_bad_skin_file_are_refused(tmp_path, cap
     assert cli.main(["review", str(recipe), "-o", str(tmp_path / "out")]) == 2
     error = " ".join(capsys.readouterr().err.split())
     assert str(bad) in error and "negative reflectance" in error and "500 nm" in error
+
+
+def test_the_masstones_are_colour_sciences_and_shade_pairs_break_where_they_part(reviewed):
+    from kmpipe.stages.review_page import _breaks
+
+    _, out, _ = reviewed
+    document = json.loads((out / "review" / "review.json").read_text(encoding="utf-8"))
+    materials = [read_material(out / "products" / f"foundation-{s}" / "material.json") for s in ("f1", "f2")]
+    w = materials[0].wavelengths
+    with np.errstate(divide="ignore", invalid="ignore"):
+        masstones = [1.0 + m.K / m.S - np.sqrt((m.K / m.S) ** 2 + 2.0 * m.K / m.S) for m in materials]
+    for row in document["tones"]:
+        for cell, mass in zip(row["cells"], masstones, strict=True):
+            for ill, values in cell["illuminants"].items():
+                np.testing.assert_allclose(values["masstone_lab"], colour_lab(mass, w, ill), atol=2e-4)
+    # Two shades 1 apart under D65 and 3 apart under A (Labs chosen so), a third far from both: with a threshold of
+    # 2, the first pair matches in daylight and breaks under A, "the second is yellower"; the third pairs with none.
+    labs = {"D65": ([60.0, 10.0, 20.0], [60.0, 10.0, 21.6], [40.0, 5.0, 10.0]),
+            "A": ([62.0, 12.0, 24.0], [62.0, 12.0, 29.0], [41.0, 6.0, 12.0])}  # fmt: skip
+    cells = [{"shade": name, "illuminants": {ill: {"masstone_lab": labs[ill][k], "worn_match_breaks": False,
+                                                   "shade_match_breaks": False} for ill in labs}}
+             for k, name in enumerate(("S1", "S2", "S3"))]  # fmt: skip
+    breaks = _breaks([{"tone": {"name": "t"}, "cells": cells}], "D65", 2.0)
+    d65 = colour.delta_E(labs["D65"][0], labs["D65"][1], method="CIE 2000")
+    under_a = colour.delta_E(labs["A"][0], labs["A"][1], method="CIE 2000")
+    assert d65 <= 2.0 < under_a
+    assert breaks == [{"tone": "", "shade": "S1 / S2", "pair": "shades", "illuminant": "A",
+                       "reference_delta_e": round(d65, 3), "delta_e": round(under_a, 3), "shift": "bluer"}]  # fmt: skip
+
+
+def test_a_users_spd_file_is_an_illuminant_whatever_its_scale(tmp_path, capsys):
+    recipe = make_line(tmp_path / "line")
+    led = colour.SDS_ILLUMINANTS["LED-B1"]
+    table = SpectralTable(led.wavelengths, None, ("relative power",), 3.7 * led.values[None, :],
+                          {"quantity": "radiance", "units": "relative"})  # fmt: skip
+    write_spectra_csv(table, tmp_path / "line" / "home_led.csv")
+    text = recipe.read_text(encoding="utf-8").replace('illuminants = ["D65", "A"]',
+                                                      'illuminants = ["D65", "LED-B1", "home_led.csv"]')  # fmt: skip
+    recipe.write_text(text.replace('tones = ["builtin:tcs13", "skin.csv"]', 'tones = ["skin.csv"]'), encoding="utf-8")
+    assert cli.main(["review", str(recipe), "-o", str(tmp_path / "out")]) == 0
+    document = json.loads((tmp_path / "out" / "review" / "review.json").read_text(encoding="utf-8"))
+    assert document["illuminants"] == ["D65", "LED-B1", "home_led.csv"]
+    for cell in document["tones"][0]["cells"]:
+        by_name, by_file = cell["illuminants"]["LED-B1"], cell["illuminants"]["home_led.csv"]
+        for key in ("coverage_delta_e", "match_delta_e", "made_up_lab", "made_up_srgb", "masstone_lab"):
+            assert by_file[key] == pytest.approx(by_name[key], abs=1e-3)
+    short = SpectralTable(led.wavelengths[4:], None, ("p",), led.values[None, 4:], {"quantity": "radiance"})
+    write_spectra_csv(short, tmp_path / "line" / "home_led.csv")
+    assert cli.main(["review", str(recipe), "-o", str(tmp_path / "out2")]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert str(tmp_path / "line" / "home_led.csv") in error and "must cover 380-780 nm" in error
+    (tmp_path / "line" / "home_led.csv").unlink()
+    assert cli.main(["review", str(recipe), "-o", str(tmp_path / "out2")]) == 2
+    error = " ".join(capsys.readouterr().err.split())
+    assert "review.illuminants[3]" in error and "does not exist" in error

@@ -63,6 +63,13 @@ class PlanFilm(_WithThickness):
     over: str
 
 
+class PlanSkin(StrictModel):
+    """Bare skin measured in the session (a panel of skin tones for shade reviews): its name and body site."""
+
+    name: str = Field(min_length=1, max_length=40, pattern=r"^[A-Za-z0-9_-]+$")
+    site: str | None = Field(default=None, min_length=1, max_length=80)
+
+
 class Plan(StrictModel):
     sample: PlanSample
     instrument: PlanInstrument = PlanInstrument()
@@ -70,6 +77,7 @@ class Plan(StrictModel):
     backing: list[PlanBacking] = Field(min_length=1)
     masstone: list[PlanMasstone] = Field(default_factory=list)
     film: list[PlanFilm] = Field(min_length=1)
+    skin: list[PlanSkin] = Field(default_factory=list)
 
 
 def plan_digest(path: Path) -> str:
@@ -96,11 +104,12 @@ def load_plan(path: Path) -> Plan:
 class Position:
     """One thing to put under the instrument: what it is, its column name, and its manifest entry."""
 
-    role: str  # white | backing | masstone | film
+    role: str  # white | backing | masstone | film | skin
     column: str
     prompt: str
     over: str | None = None
     thickness: str | None = None
+    site: str | None = None  # of a skin reading
 
 
 def positions(plan: Plan, thickness_of=None) -> list[Position]:
@@ -135,8 +144,22 @@ def positions(plan: Plan, thickness_of=None) -> list[Position]:
             over=film.over,
             thickness=thickness,
         )
+    for skin in plan.skin:
+        where = f" ({skin.site})" if skin.site else ""
+        add("skin", f"skin_{skin.name}", f"the bare skin of {skin.name}{where}", repeats, site=skin.site)
     names = [p.column for p in out]
     if len(set(names)) != len(names):
         duplicated = sorted({n for n in names if names.count(n) > 1})
         raise InputError(f"two plan entries give the same reading name {duplicated[0]!r}; use repeats instead")
     return out
+
+
+def skin_readings(plan: Plan) -> dict[str, list[str]]:
+    """The reading columns of each bare skin of the plan (``skin_NAME``, then ``_1``, ``_2``, ... with repeats), by
+    the column its mean gets in reflectance.csv (``skin_NAME``)."""
+    repeats = plan.instrument.repeats
+    found = {}
+    for skin in plan.skin:
+        base = f"skin_{skin.name}"
+        found[base] = [base] if repeats == 1 else [f"{base}_{r}" for r in range(1, repeats + 1)]
+    return found

@@ -30,7 +30,7 @@ from kmpipe.formats.files import UNLIMITED, regular_file
 from kmpipe.formats.scene import MAX_LAYERS, RenderSettings, SceneFile
 from kmpipe.formats.thresholds import Thresholds
 from kmpipe.formats.toml_input import StrictModel, input_error, located_in, read_model, toml_line
-from kmpipe.physics.colorimetry import illuminant_key
+from kmpipe.physics.colorimetry import illuminant_key, is_spd_file, register_illuminant
 
 #: The material of the product itself, in its layer stack.
 SELF = "self"
@@ -73,16 +73,17 @@ class ReviewInfo(StrictModel):
     @field_validator("illuminants")
     @classmethod
     def _known_illuminants(cls, names: list[str]) -> list[str]:
-        for name in names:
-            illuminant_key(name)
-        if len({illuminant_key(n) for n in names}) != len(names):
+        keys = [name if is_spd_file(name) else illuminant_key(name) for name in names]  # files: read at load
+        if len(set(keys)) != len(names):
             raise ValueError(f"illuminants are listed once each, got {', '.join(names)}")
         return names
 
     @model_validator(mode="after")
     def _reference_among_them(self) -> ReviewInfo:
-        keys = [illuminant_key(n) for n in self.illuminants]
-        if illuminant_key(self.reference) not in keys:
+        def key(name: str) -> str:
+            return name if is_spd_file(name) else illuminant_key(name)
+
+        if key(self.reference) not in [key(n) for n in self.illuminants]:
             raise ValueError(f"the reference illuminant {self.reference!r} must be one of the illuminants "
                              f"({', '.join(self.illuminants)})")  # fmt: skip
         return self
@@ -357,6 +358,17 @@ def review_foundations(recipe: Recipe) -> list[tuple[str, str, float]]:
     return found
 
 
+def review_illuminant_files(recipe: Recipe) -> dict[str, tuple[Path, str | None]]:
+    """The review's illuminants that are SPD files (``FILE.csv[:COLUMN]``, relative to the recipe): name -> (path,
+    column)."""
+    found = {}
+    for name in recipe.info.review.illuminants:
+        if is_spd_file(name):
+            file, _, column = name.partition(":")
+            found[name] = (recipe.base / file, column or None)
+    return found
+
+
 def _check_review(recipe: Recipe) -> None:
     """[review]: known foundations with their thickness; tone sources that exist (their spectra are read by the
     review's tasks, on the materials' grid)."""
@@ -368,6 +380,13 @@ def _check_review(recipe: Recipe) -> None:
         except (InputError, ValueError) as err:
             raise InputError(getattr(err, "message", str(err)), **recipe.where(("review", "thickness"))) from None
     review_foundations(recipe)
+    for name, (path, column) in review_illuminant_files(recipe).items():
+        i = recipe.info.review.illuminants.index(name)
+        if not path.is_file():
+            raise InputError(
+                f"names the SPD file {path}, which does not exist", **recipe.where(("review", "illuminants", i))
+            )
+        register_illuminant(name, path, column)
     for i, source in enumerate(recipe.info.review.tones):
         kind, _, rest = source.partition(":")
         at = recipe.where(("review", "tones", i))

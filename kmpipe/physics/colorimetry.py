@@ -24,16 +24,54 @@ OBSERVERS = {
 }
 
 
+#: Illuminants read from a user's spectral power distribution file in this process (:func:`register_illuminant`).
+_FILES: dict[str, colour.SpectralDistribution] = {}
+#: The range an illuminant's SPD file must cover (nm): where the colour-matching functions are tabulated in CIE 15.
+SPD_RANGE = (380.0, 780.0)
+
+
+def is_spd_file(name: str) -> bool:
+    """Whether an illuminant name names a spectral power distribution file, ``FILE.csv`` or ``FILE.csv:COLUMN``."""
+    return str(name).partition(":")[0].lower().endswith(".csv")
+
+
+def register_illuminant(name: str, path, column: str | None = None) -> None:
+    """Read the relative spectral power distribution of a light from a spectral CSV (``quantity: radiance``, any
+    scale; every column, or ``column``, the first if not given) and make it the illuminant called ``name`` in this
+    process, for every function here and the renderer. It must cover 380-780 nm (CIE 15's range of the colour-
+    matching functions), be >= 0 and not all 0; InputError naming the file otherwise."""
+    from kmpipe.formats.spectra import read_spectra_csv
+
+    table = read_spectra_csv(path)
+    if table.wavelengths is None or table.metadata.get("quantity") != "radiance":
+        raise InputError("an illuminant's SPD is a spectrum of '# quantity: radiance' (relative power, any scale)",
+                         path=path, field="quantity")  # fmt: skip
+    table.validate_values()
+    values = table.column(column or table.columns[0])
+    lo, hi = float(table.wavelengths[0]), float(table.wavelengths[-1])
+    if lo > SPD_RANGE[0] or hi < SPD_RANGE[1]:
+        raise InputError(f"covers {lo:g}-{hi:g} nm; an illuminant's SPD must cover {SPD_RANGE[0]:g}-"
+                         f"{SPD_RANGE[1]:g} nm", path=path, field="wavelength")  # fmt: skip
+    if not np.any(values > 0):
+        raise InputError("the SPD is 0 everywhere: no light", path=path, field=column or table.columns[0])
+    _FILES[str(name)] = colour.SpectralDistribution(  # interpolated linearly, as colour-science's own illuminants
+        dict(zip(table.wavelengths, values, strict=True)), name=str(name), interpolator=colour.LinearInterpolator
+    )
+
+
 def illuminant_key(name: str) -> str:
     """colour-science's key of the CIE illuminant ``name``, the one resolver of illuminant names for scenes, recipes
     and validation: case-insensitive; the CIE's F1 ... F12 and F3.1 ... F3.15 are colour-science's FL1 ... (and FL
-    names work too); LED-B1 ... LED-V2 (CIE 15:2018), A, B, C, D50 ... D75, E, ISO 7589 names.
+    names work too); LED-B1 ... LED-V2 (CIE 15:2018), A, B, C, D50 ... D75, E, ISO 7589 names; or the name of a
+    user's SPD file registered in this process (:func:`register_illuminant`), as it was registered.
 
     Raises
     ------
     ValueError
         The name is not an illuminant colour-science knows; the message gives examples that are.
     """
+    if str(name) in _FILES:
+        return str(name)
     upper = str(name).strip().upper()
     if re.fullmatch(r"F\d+(\.\d+)?", upper):
         upper = "FL" + upper[1:]
@@ -47,7 +85,8 @@ def illuminant_key(name: str) -> str:
 def illuminant_sd(name: str) -> colour.SpectralDistribution:
     """The CIE illuminant called ``name`` (see :func:`illuminant_key`)."""
     try:
-        return colour.SDS_ILLUMINANTS[illuminant_key(name)]
+        key = illuminant_key(name)
+        return _FILES[key] if key in _FILES else colour.SDS_ILLUMINANTS[key]
     except ValueError as err:
         raise InputError(str(err), field="--illuminant") from None
 

@@ -362,7 +362,7 @@ def plan_run(
 def _plan_review(recipe: Recipe, out_dir: Path, claims: _Claims, add, material_key: dict, rel) -> None:
     """The shade review's tasks: a row per skin tone (keyed by the tone's own spectrum, so that a new tone renders
     only its row), then the matrix."""
-    from kmpipe.formats.recipe import review_foundations
+    from kmpipe.formats.recipe import review_foundations, review_illuminant_files
     from kmpipe.formats.skin_tones import tone_digests
 
     review = recipe.info.review
@@ -372,7 +372,9 @@ def _plan_review(recipe: Recipe, out_dir: Path, claims: _Claims, add, material_k
                     "thickness_mm": thickness} for name, shade, thickness in review_foundations(recipe)]  # fmt: skip
     deps = tuple(f"material:{slug(f['name'])}" for f in foundations)
     upstream = [material_key[f["name"]] for f in foundations]
-    settings = [[f["shade"], f["thickness_mm"]] for f in foundations], review.illuminants, review.reference
+    spd_files = review_illuminant_files(recipe)
+    spds = {name: sha256(path) for name, (path, _) in spd_files.items()}  # an edited SPD file re-runs every row
+    settings = [[f["shade"], f["thickness_mm"]] for f in foundations], review.illuminants, review.reference, spds
     rows, keys = [], []
     for source, tone, digest in tone_digests(review.tones, recipe.base, recipe.where(("review", "tones"))):
         out = folder / "tones" / tone
@@ -381,7 +383,8 @@ def _plan_review(recipe: Recipe, out_dir: Path, claims: _Claims, add, material_k
         add(Task("tone", tone, None, deps, key, (rel(out / "row.json"),), do_tone,
                  {"tone_source": source, "tone_id": tone, "base": str(recipe.base), "foundations": foundations,
                   "illuminants": review.illuminants, "reference": review.reference,
-                  "threshold": review.match_delta_e, "out": str(out), "tile": review.tile},
+                  "threshold": review.match_delta_e, "out": str(out), "tile": review.tile,
+                  "illuminant_files": {n: (str(p), c) for n, (p, c) in spd_files.items()}},
                  (rel(out),)), f"the review's row of {tone}", "outputs.review")  # fmt: skip
         rows.append(str(out / "row.json"))
         keys.append(key)

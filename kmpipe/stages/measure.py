@@ -54,6 +54,7 @@ from kmpipe.formats.measurement_plan import (
     load_plan,
     plan_digest,
     positions,
+    skin_readings,
 )
 from kmpipe.formats.spectra import SpectralTable, read_spectra_csv, write_spectra_csv
 from kmpipe.formats.toml_input import field_line
@@ -195,8 +196,9 @@ class Session:
 
 
 def _finish(session: Session, plan: Plan, steps: list[Position]) -> Path:
-    """reflectance.csv (white-normalized with the mean of the white readings; each bare backing as the mean of
-    its readings; every masstone and film reading as it is) and manifest.toml; returns the manifest path."""
+    """reflectance.csv (white-normalized with the mean of the white readings; each bare backing and each bare skin as
+    the mean of its readings; every masstone and film reading as it is) and manifest.toml (without the skin: it is
+    not part of the sample's fit); returns the manifest path."""
     wavelengths = np.arange(380.0, 781.0)
 
     def readings_of(role: str, over: str | None = None) -> list[str]:
@@ -225,6 +227,9 @@ def _finish(session: Session, plan: Plan, steps: list[Position]) -> Path:
             if p.thickness:
                 entry["thickness"] = p.thickness
             measured[p.role].append(entry)
+    for column, names in skin_readings(plan).items():  # skin tones for shade reviews: the mean of their readings
+        columns[column] = reflectance(np.mean([session.readings[c] for c in names], axis=0), names[0])
+    sites = {f"site.skin_{skin.name}": skin.site for skin in plan.skin if skin.site}
     instrument = session.state.get("instrument", {})
     metadata = {
         "quantity": "reflectance",
@@ -233,6 +238,8 @@ def _finish(session: Session, plan: Plan, steps: list[Position]) -> Path:
         "serial": instrument.get("serial", ""),
         "white_reference": f"mean of {', '.join(whites)} in radiance.csv x {plan.white.certified}",
         "backings": "each bare backing is the mean of its readings",
+        **({"skin": "each bare skin (skin_NAME) is the mean of its readings"} if plan.skin else {}),
+        **sites,
     }
     table = SpectralTable(wavelengths, None, tuple(columns), np.array(list(columns.values())), metadata)
     write_spectra_csv(table, session.folder / "reflectance.csv")

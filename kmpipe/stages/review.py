@@ -111,12 +111,18 @@ def review_row(
     threshold: float,
     out: str,
     tile: int,
+    illuminant_files: dict[str, tuple[str, str | None]] | None = None,
 ) -> dict:
     """One tone's row of the review into folder ``out``: ``row.json`` and the tiles; returns the row.
 
     ``foundations``: dicts of ``name``, ``shade``, ``material`` (a MATERIAL.json path) and ``thickness_mm``, all on
-    one wavelength grid; the tone is ``tone_id`` of the source ``tone_source`` (paths relative to ``base``).
+    one wavelength grid; the tone is ``tone_id`` of the source ``tone_source`` (paths relative to ``base``);
+    ``illuminant_files``: the illuminants read from SPD files, name -> (path, column).
     """
+    from kmpipe.physics.colorimetry import register_illuminant
+
+    for name, (path, column) in (illuminant_files or {}).items():
+        register_illuminant(name, path, column)  # in this (worker) process
     from kmpipe.formats.files import sha256
     from kmpipe.formats.material import read_material
     from renderer.image_io import write_png
@@ -157,6 +163,7 @@ def review_row(
                 "coverage_delta_e": round(float(coverage[j, i]), 3),
                 "match_delta_e": round(float(match[j, i]), 3),
                 "made_up_lab": [round(float(v), 3) for v in lab_worn],
+                "masstone_lab": [round(float(v), 4) for v in reflectance_to_Lab(full[i], wavelengths, ill)],
                 "made_up_srgb": "#" + "".join(f"{round(float(c) * 255):02x}" for c in swatch),
                 "worn_match_breaks": bool(worn_breaks[j, i]),
                 "shade_match_breaks": bool(shade_breaks[j, i]),

@@ -11,7 +11,11 @@ import io
 import json
 from pathlib import Path
 
+import numpy as np
+
 from kmpipe.formats.atomic_write import write_text_atomically
+from kmpipe.physics.colorimetry import delta_E_2000
+from kmpipe.physics.shade_match import shift_words
 
 FORMAT = "kmpipe-review/1"
 #: Side (px) of the sheet's cells.
@@ -21,8 +25,10 @@ CSV_COLUMNS = ("tone_id", "tone", "kind", "site", "ita_deg", "ita_class", "produ
                "shade_match_breaks", "made_up_srgb", "shift")  # fmt: skip
 
 
-def _breaks(rows: list[dict], reference: str) -> list[dict]:
-    """The matches under the reference that break under another illuminant: what, where, by how much."""
+def _breaks(rows: list[dict], reference: str, threshold: float) -> list[dict]:
+    """The matches under the reference that break under another illuminant: what, where, by how much. Per tone, a
+    foundation worn against the bare skin (``worn``) and its masstone against the tone (``shade``); once for the line,
+    two shades' masstones against each other (``shades``: two shades a counter would take for one in daylight)."""
     found = []
     for row in rows:
         for cell in row["cells"]:
@@ -33,6 +39,21 @@ def _breaks(rows: list[dict], reference: str) -> list[dict]:
                         found.append({"tone": row["tone"]["name"], "shade": cell["shade"], "pair": kind,
                                       "illuminant": ill, "reference_delta_e": ref[key], "delta_e": values[key],
                                       "shift": values["shift"]})  # fmt: skip
+    cells = rows[0]["cells"]  # masstones do not depend on the tone
+    for i, first in enumerate(cells):
+        for second in cells[i + 1 :]:
+            lab = {
+                ill: (np.asarray(first["illuminants"][ill]["masstone_lab"]), np.asarray(values["masstone_lab"]))
+                for ill, values in second["illuminants"].items()
+            }
+            delta = {ill: float(delta_E_2000(a, b)) for ill, (a, b) in lab.items()}
+            if delta[reference] > threshold:
+                continue
+            for ill, value in delta.items():
+                if value > threshold:
+                    found.append({"tone": "", "shade": f"{first['shade']} / {second['shade']}", "pair": "shades",
+                                  "illuminant": ill, "reference_delta_e": round(delta[reference], 3),
+                                  "delta_e": round(value, 3), "shift": shift_words(*lab[ill])})  # fmt: skip
     return found
 
 
@@ -73,6 +94,19 @@ def _sheet(rows: list[dict], folders: list[Path], illuminants: list[str], header
 
 
 _SCRIPT = """
+const matrix = document.getElementById('matrix'), shades = +matrix.dataset.shades, groups = +matrix.dataset.groups;
+for (const td of matrix.querySelectorAll('td.tone')) td.addEventListener('click', () => {
+  // this tone's best shades first, within each illuminant's columns
+  const row = td.parentElement;
+  for (let g = 0; g < groups; g++) {
+    const start = 3 + g * (shades + 1) + 1, order = [...Array(shades).keys()].map(i => start + i);
+    order.sort((a, b) => +row.cells[a].dataset.value - +row.cells[b].dataset.value);
+    for (const r of matrix.rows) {
+      const cells = order.map(i => r.cells[i]), after = r.cells[start + shades] || null;
+      cells.forEach(c => r.insertBefore(c, after));
+    }
+  }
+});
 for (const th of document.querySelectorAll('th[data-sort]')) th.addEventListener('click', () => {
   const table = th.closest('table'), body = table.tBodies[0], k = th.cellIndex;
   const up = th.dataset.dir !== 'up'; th.dataset.dir = up ? 'up' : 'down';
@@ -85,6 +119,7 @@ _STYLE = """
 body { font: 14px system-ui, sans-serif; margin: 24px; color: #222; }
 table { border-collapse: collapse; margin-bottom: 24px; } td, th { border: 1px solid #ccc; padding: 4px 6px; }
 th[data-sort] { cursor: pointer; background: #f3f3f3; } th[data-sort]:hover { background: #e4e4e4; }
+td.tone { cursor: pointer; }
 td.cell { text-align: center; vertical-align: top; font-size: 12px; } td.cell img { width: 128px; display: block; }
 .swatch { display: inline-block; width: 14px; height: 14px; border: 1px solid #888; vertical-align: middle; }
 .best { box-shadow: inset 0 0 0 3px #2a7; } .broken { color: #b30; font-weight: 600; }
@@ -99,8 +134,9 @@ def _html(document: dict, folders: list[str]) -> str:
     body = []
     for row, folder in zip(rows, folders, strict=True):
         tone = row["tone"]
-        cells = [f'<td>{e(tone["name"])}<br><small>{e(tone["kind"])}{", " + e(tone["site"]) if tone["site"] else ""}'
-                 f'</small></td>', f'<td data-value="{tone["ita_deg"]}">{tone["ita_deg"]:.1f}° '
+        site = ", " + e(tone["site"]) if tone["site"] else ""
+        cells = [f'<td class="tone" title="click: this tone\'s best shades first">{e(tone["name"])}<br><small>'
+                 f'{e(tone["kind"])}{site}</small></td>', f'<td data-value="{tone["ita_deg"]}">{tone["ita_deg"]:.1f}° '
                  f'<small>{e(tone["ita_class"])}</small></td>',
                  f'<td>{e(row["best"])}<br><small>then {e(row["second"] or "-")}, by '
                  f'{row["margin_delta_e"] if row["margin_delta_e"] is not None else "-"}</small></td>']  # fmt: skip
@@ -135,8 +171,10 @@ def _html(document: dict, folders: list[str]) -> str:
 swatches adapted to D65 as a viewer adapted to each light sees them). <b>cov</b>: Delta E 2000 between bare and
 made-up skin; <b>match</b>: Delta E 2000 between the shade's masstone and the bare tone (the best shade of each tone
 is outlined, ranked under {e(reference)}). A match (Delta E 2000 &le; {threshold:g} under {e(reference)}) that passes
-{threshold:g} under another light is marked. Click a column's head to sort by it.</p>
-<table><thead><tr><th data-sort="1">tone</th><th data-sort="1">ITA</th><th data-sort="1">best shade</th>{head}</tr>
+{threshold:g} under another light is marked. Click a column's head to sort the tones by it, a tone to put its best
+shades first.</p>
+<table id="matrix" data-shades="{len(shades)}" data-groups="{len(illuminants)}"><thead><tr><th data-sort="1">tone</th>
+<th data-sort="1">ITA</th><th data-sort="1">best shade</th>{head}</tr>
 </thead><tbody>{"".join(body)}</tbody></table>
 <h2>Matches that break under another light</h2>
 {
@@ -169,7 +207,7 @@ def write_review(rows: list[str], out: str, line: str, illuminants: list[str], r
         "match_delta_e": threshold,
         "shades": [c["shade"] for c in loaded[0]["cells"]],
         "tones": loaded,
-        "breaks": _breaks(loaded, reference),
+        "breaks": _breaks(loaded, reference, threshold),
     }
     write_text_atomically(folder / "review.json", json.dumps(document, indent=1) + "\n")
     write_text_atomically(folder / "review.csv", _csv(loaded))
