@@ -101,6 +101,9 @@ def test_a_panel_file_gives_names_sites_and_ids(tmp_path):
     assert [(t.id, t.name, t.site) for t in tones] == [("volunteer-7", "Volunteer 7", "inner forearm"),
                                                        ("v8", "Volunteer 8", None)]  # fmt: skip
     np.testing.assert_allclose(tones[0].reflectance, 0.5 * smooth_skin(GRID), atol=1e-12)
+    native = read_tones(["panel.toml"], None, tmp_path, {})  # as read: the CSV's own grid
+    np.testing.assert_array_equal(native[1].wavelengths, GRID)
+    assert [i for _, i, _ in tone_digests(["panel.toml"], tmp_path, {})] == ["volunteer-7", "v8"]
 
 
 @pytest.mark.parametrize(

@@ -57,6 +57,12 @@ class ValidationInfo(StrictModel):
         return names
 
 
+def _illuminant_id(name: str) -> str:
+    """An illuminant's identity: its CIE key (ValueError if unknown), or an SPD file's name as written (the file is
+    read when the recipe is loaded)."""
+    return name if is_spd_file(name) else illuminant_key(name)
+
+
 class ReviewInfo(StrictModel):
     """``[review]``: the shade review (kmpipe.stages.review): foundations (product names of the line, each worn at the
     thickness of its own layer), skin tones (kmpipe.formats.skin_tones), illuminants, the reference illuminant among
@@ -73,17 +79,13 @@ class ReviewInfo(StrictModel):
     @field_validator("illuminants")
     @classmethod
     def _known_illuminants(cls, names: list[str]) -> list[str]:
-        keys = [name if is_spd_file(name) else illuminant_key(name) for name in names]  # files: read at load
-        if len(set(keys)) != len(names):
+        if len({_illuminant_id(n) for n in names}) != len(names):
             raise ValueError(f"illuminants are listed once each, got {', '.join(names)}")
         return names
 
     @model_validator(mode="after")
     def _reference_among_them(self) -> ReviewInfo:
-        def key(name: str) -> str:
-            return name if is_spd_file(name) else illuminant_key(name)
-
-        if key(self.reference) not in [key(n) for n in self.illuminants]:
+        if _illuminant_id(self.reference) not in [_illuminant_id(n) for n in self.illuminants]:
             raise ValueError(f"the reference illuminant {self.reference!r} must be one of the illuminants "
                              f"({', '.join(self.illuminants)})")  # fmt: skip
         return self
@@ -387,19 +389,12 @@ def _check_review(recipe: Recipe) -> None:
                 f"names the SPD file {path}, which does not exist", **recipe.where(("review", "illuminants", i))
             )
         register_illuminant(name, path, column)
-    for i, source in enumerate(recipe.info.review.tones):
-        kind, _, rest = source.partition(":")
-        at = recipe.where(("review", "tones", i))
-        if kind == "builtin":
-            from kmpipe.formats.skin_tones import BUILTIN
+    from kmpipe.formats.skin_tones import source_kind
 
-            if rest and rest not in BUILTIN:
-                raise InputError(f"no built-in skin tone {rest!r}; there are {', '.join(BUILTIN)}", **at)
-        elif kind.lower().endswith((".csv", ".toml")):
-            _existing(recipe, kind, ("review", "tones", i))
-        else:
-            raise InputError(f"unknown skin-tone source {source!r}: expected 'builtin', 'builtin:ID', 'FILE.csv', "
-                             "'FILE.csv:COLUMN' or a panel 'FILE.toml'", **at)  # fmt: skip
+    for i, source in enumerate(recipe.info.review.tones):
+        kind, rest = source_kind(source, recipe.where(("review", "tones", i)))
+        if kind != "builtin":
+            _existing(recipe, rest.partition(":")[0] if kind == "csv" else rest, ("review", "tones", i))
 
 
 def _thresholds(info: ValidationInfo, path: Path, text: str) -> Thresholds:

@@ -90,12 +90,9 @@ def tone_id(name: str) -> str:
 
 def _builtin(key: str, wavelengths: np.ndarray | None) -> SkinTone:
     name, dataset, patch, kind = BUILTIN[key]
-    if dataset == "BabelColor Average":
+    if dataset in colour.SDS_COLOURCHECKERS:
         sd = colour.SDS_COLOURCHECKERS[dataset][patch]
         source = f"colour-science SDS_COLOURCHECKERS['{dataset}']['{patch}']"
-    elif dataset == "PMC":
-        sd = colour.SDS_COLOURCHECKERS[dataset][patch]
-        source = f"colour-science SDS_COLOURCHECKERS['PMC'] patch {patch!r}"
     else:
         sd = colour.quality.SDS_TCS[dataset][patch]
         source = f"colour-science SDS_TCS['{dataset}']['{patch}']"
@@ -154,6 +151,28 @@ def _csv_tones(path: Path, column: str | None, wavelengths: np.ndarray | None, w
     return tones
 
 
+def source_kind(source: str, where: dict) -> tuple[str, str]:
+    """What a tone source is, ``("builtin", ID or "")``, ``("csv", "FILE.csv[:COLUMN]")`` or ``("panel",
+    "FILE.toml")``; InputError (at ``where``) for an unknown source or built-in id."""
+    kind, _, rest = source.partition(":")
+    if kind == "builtin":
+        if rest and rest not in BUILTIN:
+            raise InputError(f"no built-in skin tone {rest!r}; there are {', '.join(BUILTIN)}", **where)
+        return "builtin", rest
+    if kind.lower().endswith(".csv"):
+        return "csv", source
+    if source.lower().endswith(".toml"):
+        return "panel", source
+    raise InputError(f"unknown skin-tone source {source!r}: expected 'builtin', 'builtin:ID', 'FILE.csv', "
+                     "'FILE.csv:COLUMN' or a panel 'FILE.toml'", **where)  # fmt: skip
+
+
+def _refuse_repeated(ids: list[str], where: dict) -> None:
+    repeated = sorted({i for i in ids if ids.count(i) > 1})
+    if repeated:
+        raise InputError(f"two skin tones share the id {', '.join(repeated)}: give them different names", **where)
+
+
 def read_tones(sources: list[str], wavelengths: np.ndarray | None, base: Path, where: dict) -> list[SkinTone]:
     """The tones the ``sources`` name (see the module), on ``wavelengths`` (nm; None: each on its own grid), paths
     relative to ``base``; InputError naming the file or field for a source that is unknown, missing, off the grid,
@@ -161,14 +180,13 @@ def read_tones(sources: list[str], wavelengths: np.ndarray | None, base: Path, w
     wavelengths = None if wavelengths is None else np.asarray(wavelengths, dtype=float)
     tones: list[SkinTone] = []
     for source in sources:
-        kind, _, rest = source.partition(":")
+        kind, rest = source_kind(source, where)
         if kind == "builtin":
-            if rest and rest not in BUILTIN:
-                raise InputError(f"no built-in skin tone {rest!r}; there are {', '.join(BUILTIN)}", **where)
             tones += [_builtin(k, wavelengths) for k in ([rest] if rest else BUILTIN)]
-        elif kind.lower().endswith(".csv"):
-            tones += _csv_tones(base / kind, rest or None, wavelengths, where)
-        elif source.lower().endswith(".toml"):
+        elif kind == "csv":
+            file, _, column = rest.partition(":")
+            tones += _csv_tones(base / file, column or None, wavelengths, where)
+        else:
             path = base / source
             if not path.is_file():
                 raise InputError(f"names the skin-tone panel {path}, which does not exist", **where)
@@ -180,14 +198,8 @@ def read_tones(sources: list[str], wavelengths: np.ndarray | None, base: Path, w
                     raise InputError("give the column: spectrum = 'FILE.csv:COLUMN'", **at)
                 [tone] = _csv_tones(path.parent / file, column, wavelengths, at)
                 tones.append(SkinTone(entry.id or tone_id(entry.name), entry.name, "measured", tone.source,
-                                      entry.site, wavelengths, tone.reflectance))  # fmt: skip
-        else:
-            raise InputError(f"unknown skin-tone source {source!r}: expected 'builtin', 'builtin:ID', 'FILE.csv', "
-                             "'FILE.csv:COLUMN' or a panel 'FILE.toml'", **where)  # fmt: skip
-    ids = [t.id for t in tones]
-    repeated = sorted({i for i in ids if ids.count(i) > 1})
-    if repeated:
-        raise InputError(f"two skin tones share the id {', '.join(repeated)}: give them different names", **where)
+                                      entry.site, tone.wavelengths, tone.reflectance))  # fmt: skip
+    _refuse_repeated([t.id for t in tones], where)
     if not tones:
         raise InputError("no skin tone: give at least one source", **where)
     return tones
@@ -205,8 +217,5 @@ def tone_digests(sources: list[str], base: Path, where: dict) -> list[tuple[str,
             digest.update(np.ascontiguousarray(tone.wavelengths, dtype="<f8").tobytes())
             digest.update(np.ascontiguousarray(tone.reflectance, dtype="<f8").tobytes())
             found.append((source, tone.id, digest.hexdigest()))
-    ids = [f[1] for f in found]
-    repeated = sorted({i for i in ids if ids.count(i) > 1})
-    if repeated:
-        raise InputError(f"two skin tones share the id {', '.join(repeated)}: give them different names", **where)
+    _refuse_repeated([f[1] for f in found], where)
     return found

@@ -54,6 +54,8 @@ def register_illuminant(name: str, path, column: str | None = None) -> None:
                          f"{SPD_RANGE[1]:g} nm", path=path, field="wavelength")  # fmt: skip
     if not np.any(values > 0):
         raise InputError("the SPD is 0 everywhere: no light", path=path, field=column or table.columns[0])
+    for key in [k for k in _WEIGHTS if k[1] == str(name)]:  # weights of an earlier file of that name
+        del _WEIGHTS[key]
     _FILES[str(name)] = colour.SpectralDistribution(  # interpolated linearly, as colour-science's own illuminants
         dict(zip(table.wavelengths, values, strict=True)), name=str(name), interpolator=colour.LinearInterpolator
     )

@@ -18,16 +18,18 @@ import dataclasses
 import json
 from pathlib import Path
 
+import colour
 import numpy as np
 
 from kmpipe.formats.atomic_write import write_text_atomically
+from kmpipe.formats.files import sha256
+from kmpipe.formats.material import read_material
 from kmpipe.formats.recipe import slug
+from kmpipe.formats.scene import HEAD_DIR
 from kmpipe.formats.skin_tones import SkinTone, read_tones
-from kmpipe.physics.colorimetry import reflectance_to_Lab, reflectance_to_sRGB
+from kmpipe.physics.colorimetry import reflectance_to_Lab, reflectance_to_sRGB, register_illuminant
 from kmpipe.physics.shade_match import broken_matches, made_up, masstone, pair_delta_e, rank_shades, shift_words
 
-#: The bundled head's maps, relative to the repository's recipes folder.
-HEAD = Path(__file__).resolve().parents[2] / "recipes" / "head"
 #: Where the tiles look: the left cheek of the bundled head, from the camera's side (mm, from the head's centre).
 CHEEK_AIM_MM = (35.0, -20.0, 40.0)
 #: Side of a swatch in a tile, as a fraction of the tile.
@@ -40,8 +42,8 @@ def _tile_data(tone_csv: Path, tone: str, material: Path, illuminant: str, size:
         "scene": {"name": "Shade review", "illuminant": illuminant, "mesh": "head", "resolution": [size, size]},
         "skin": {
             "reflectance": f"{tone_csv}:{tone}",
-            "normal_map": str(HEAD / "head_normal.png"),
-            "roughness_map": str(HEAD / "head_roughness.png"),
+            "normal_map": str(HEAD_DIR / "head_normal.png"),
+            "roughness_map": str(HEAD_DIR / "head_roughness.png"),
         },
         "layer": [{"material": str(material), "thickness": "10 um", "specular": {"roughness": 0.45, "ior": 1.5}}],
         "light": [{"direction": [0.6, 0.5, 0.8], "radiance": [0.8, 0.8, 0.8], "angle_deg": 20.0}],
@@ -95,10 +97,14 @@ def _with_swatch(tile: np.ndarray, srgb: np.ndarray) -> np.ndarray:
     """The tile (linear RGB) with a swatch of display colour ``srgb`` (encoded) in its lower right corner, framed."""
     out = np.array(tile, dtype=float)
     side = max(4, round(SWATCH * min(out.shape[:2])))
-    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
     out[-side - 2 :, -side - 2 :] = 1.0
-    out[-side:, -side:] = linear
+    out[-side:, -side:] = colour.cctf_decoding(srgb, function="sRGB")
     return out
+
+
+def _hex(srgb: np.ndarray) -> str:
+    """``#rrggbb`` of display sRGB in [0, 1]."""
+    return "#" + "".join(f"{round(float(c) * 255):02x}" for c in srgb)
 
 
 def review_row(
@@ -119,14 +125,10 @@ def review_row(
     one wavelength grid; the tone is ``tone_id`` of the source ``tone_source`` (paths relative to ``base``);
     ``illuminant_files``: the illuminants read from SPD files, name -> (path, column).
     """
-    from kmpipe.physics.colorimetry import register_illuminant
+    from renderer.image_io import write_png
 
     for name, (path, column) in (illuminant_files or {}).items():
         register_illuminant(name, path, column)  # in this (worker) process
-    from kmpipe.formats.files import sha256
-    from kmpipe.formats.material import read_material
-    from renderer.image_io import write_png
-
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     materials = [read_material(f["material"]) for f in foundations]
@@ -143,19 +145,17 @@ def review_row(
     worn_breaks = broken_matches(coverage, ref, threshold)
     shade_breaks = broken_matches(match, ref, threshold)
     tiles = _Tiles(tone, Path(foundations[0]["material"]), folder, tile)
-    bare_tiles = {}
+    bare = {}
     for ill in illuminants:
-        name = f"bare_{slug(ill)}.png"
-        write_png(folder / name, _with_swatch(tiles.render(materials[0], "bare", 0.0, ill),
-                                              reflectance_to_sRGB(skin, wavelengths, ill)))  # fmt: skip
-        bare_tiles[ill] = name
+        name, srgb = f"bare_{slug(ill)}.png", reflectance_to_sRGB(skin, wavelengths, ill)
+        write_png(folder / name, _with_swatch(tiles.render(materials[0], "bare", 0.0, ill), srgb))
+        bare[ill] = {"srgb": _hex(srgb), "tile": name, "lab": reflectance_to_Lab(skin, wavelengths, ill)}
     cells = []
     for i, (material, f) in enumerate(zip(materials, foundations, strict=True)):
         per_illuminant = {}
         digest = sha256(f["material"])
         for j, ill in enumerate(illuminants):
             lab_worn = reflectance_to_Lab(worn[i], wavelengths, ill)
-            lab_bare = reflectance_to_Lab(skin, wavelengths, ill)
             name = f"{slug(f['shade'])}_{slug(ill)}.png"
             swatch = reflectance_to_sRGB(worn[i], wavelengths, ill)
             write_png(folder / name, _with_swatch(tiles.render(material, digest, f["thickness_mm"], ill), swatch))
@@ -164,10 +164,10 @@ def review_row(
                 "match_delta_e": round(float(match[j, i]), 3),
                 "made_up_lab": [round(float(v), 3) for v in lab_worn],
                 "masstone_lab": [round(float(v), 4) for v in reflectance_to_Lab(full[i], wavelengths, ill)],
-                "made_up_srgb": "#" + "".join(f"{round(float(c) * 255):02x}" for c in swatch),
+                "made_up_srgb": _hex(swatch),
                 "worn_match_breaks": bool(worn_breaks[j, i]),
                 "shade_match_breaks": bool(shade_breaks[j, i]),
-                "shift": shift_words(lab_worn, lab_bare),
+                "shift": shift_words(lab_worn, bare[ill]["lab"]),
                 "tile": name,
             }
         cells.append({"product": f["name"], "shade": f["shade"], "thickness_mm": f["thickness_mm"],
@@ -184,14 +184,7 @@ def review_row(
             "ita_deg": round(tone.ita_deg, 2),
             "ita_class": tone.ita_class,
         },
-        "bare": {
-            ill: {
-                "srgb": "#"
-                + "".join(f"{round(float(c) * 255):02x}" for c in reflectance_to_sRGB(skin, wavelengths, ill)),
-                "tile": bare_tiles[ill],
-            }
-            for ill in illuminants
-        },
+        "bare": {ill: {"srgb": values["srgb"], "tile": values["tile"]} for ill, values in bare.items()},
         "best": shades[ranking.best],
         "second": None if ranking.second is None else shades[ranking.second],
         "margin_delta_e": None if ranking.margin is None else round(ranking.margin, 3),
