@@ -83,12 +83,13 @@ def _sheet(rows: list[dict], folders: list[Path], illuminants: list[str], header
             captions.append(f"bare · ITA {row['tone']['ita_deg']:.0f}°")
             for cell in row["cells"]:
                 v = cell["illuminants"][ill]
-                mark = " · best" if cell["shade"] == row["best"] else ""
-                mark += " · breaks" if v["worn_match_breaks"] or v["shade_match_breaks"] else ""
+                mark = " best" if cell["shade"] == row["best"] else ""
+                mark += " breaks" if v["worn_match_breaks"] or v["shade_match_breaks"] else ""
                 frames.append(folder / v["tile"])
-                captions.append(f"cov {v['coverage_delta_e']:.1f} · match {v['match_delta_e']:.1f}{mark}")
+                captions.append(f"cov {v['coverage_delta_e']:.1f} / {v['match_delta_e']:.1f}{mark}")
     columns = [f"{ill} · {name}" for ill in illuminants for name in ["bare", *shades]]
-    sheet = make_sheet(frames, rows=[r["tone"]["name"] for r in rows], columns=columns, header=header,
+    legend = "under each shade: cov (Delta E 2000, bare vs made-up) / match (Delta E 2000, shade vs tone)"
+    sheet = make_sheet(frames, rows=[r["tone"]["name"] for r in rows], columns=columns, header=f"{header} · {legend}",
                        cell_size=(SHEET_CELL, SHEET_CELL), font_size=13, captions=captions)  # fmt: skip
     write_sheet(sheet, out)
 
