@@ -22,6 +22,7 @@ import bench_render_modes
 import bench_review
 import bench_run
 import bench_skin
+import bench_uncertainty
 import numpy as np
 from common import REPO, Table, machine
 
@@ -37,6 +38,7 @@ def _summary(
     look: dict,
     run_rows: list,
     review_rows: list,
+    uncertainty: dict,
 ) -> Table:
     rows = []
     for t in inversion["timings"]:
@@ -109,6 +111,11 @@ def _summary(
     for r in review_rows:
         rows.append([f"shade review 10 x 8 x 3, tiles 256, end to end ({r[0]}): s", "< 60", r[2], r[5]])
         rows.append([f"shade review, cached re-run ({r[0]}): s", "< 2", r[4], r[6]])
+    limits = {"linear_s": bench_uncertainty.LINEAR_TARGET_S, "total_s": bench_uncertainty.MONTE_CARLO_TARGET_S}
+    labels = {"linear_s": "budget + linearized colour radius, one sample: ms", "total_s": "... + 1,000 Monte Carlo: ms"}
+    for key, target in limits.items():
+        met = "yes" if uncertainty[key] <= target else "no"
+        rows.append([labels[key], f"<= {target * 1e3:.0f}", f"{uncertainty[key] * 1e3:.0f}", met])
     return Table(
         "Targets", ["quantity", "target", "measured", "met"], rows, ["inversion and fit rows on noisy readings"]
     )
@@ -163,10 +170,11 @@ def main() -> None:
     skin_rows = measure("Makeup on skin", bench_skin)
     look = measure("The full look", bench_look)
     run_rows = measure("Product line", bench_run)
+    uncertainty = measure("Uncertainty to the rendered colour", bench_uncertainty)
     review_rows = measure("Shade review", bench_review)
     total = time.perf_counter() - started
 
-    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows, review_rows)
+    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows, review_rows, uncertainty)
     summary.print()
     for _, tables, _ in parts:
         for table in tables:
@@ -177,8 +185,8 @@ def main() -> None:
         "# Benchmarks",
         "",
         "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering, skin, the",
-        "full look on the bundled head, product-line runs and the shade review,",
-        "on simulated drawdowns",
+        "full look on the bundled head, product-line runs, the uncertainty of the rendered colour and the shade",
+        "review, on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",
         "do not edit by hand; rerun it. Benchmarks measure, they do not pass or fail; speed never goes into",

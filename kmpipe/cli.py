@@ -63,6 +63,21 @@ _smoothness_arg = _number_arg(0.0, MAX_SMOOTHNESS, low_included=True, what=f"a n
 _positive_arg = _number_arg(0.0, float("inf"), low_included=False, what="a positive number")
 
 
+def _thickness_arg(text: str) -> float:
+    from kmpipe.formats.manifest import parse_thickness_mm
+
+    try:
+        return parse_thickness_mm(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _draws_arg(text: str) -> int:
+    if not text.isdigit() or int(text) > 100_000:
+        raise argparse.ArgumentTypeError(f"expected a whole number of draws from 0 to 100000, got {text!r}")
+    return int(text)
+
+
 def _grid_arg(text: str) -> str:
     try:
         parse_grid(text)
@@ -157,8 +172,12 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
             "delta_e_fail": args.delta_e_fail,
             "rmse_warn": args.rmse_warn,
             "rmse_fail": args.rmse_fail,
+            "uncertainty_warn": args.uncertainty_warn,
+            "uncertainty_fail": args.uncertainty_fail,
         },
         output=args.output,
+        context=None if args.at is None and args.over is None else {"thickness_mm": args.at, "over": args.over},
+        draws=args.draws,
     )
 
     table = Table(title="Validation", title_justify="left")
@@ -166,6 +185,7 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
         ("sample", "left"),
         ("verdict", "left"),
         ("worst ΔE00", "right"),
+        ("colour ±ΔE00 (95 %)", "right"),
         ("reasons", "left"),
     ):
         table.add_column(column, justify=justify)
@@ -176,12 +196,19 @@ def _cmd_validate(args: argparse.Namespace, console: Console) -> int:
             escape(report.material.name),
             f"[{colours[report.verdict]}]{report.verdict}[/]",
             "n/a" if worst is None else f"{worst:.2f}",
+            "n/a" if report.uncertainty is None else f"{report.uncertainty.worst.radius:.2f}",
             escape(", ".join(report.reasons)) or "none",
         )
     for broken in result.broken:
         table.add_row(escape(broken.path.name), "[red]error[/]", "", escape(broken.error.message))
     console.print(table)
     if len(result.materials) == 1:
+        doubt = result.entries[0].report.uncertainty if result.entries else None
+        if doubt is not None:
+            from kmpipe.validation.uncertainty import headline, suggestion_line
+
+            console.print(headline(doubt.worst), highlight=False, markup=False)
+            console.print(f"what to measure next: {suggestion_line(doubt)}", highlight=False, markup=False)
         console.print(f"report: {result.entries[0].page}", highlight=False, markup=False)
     elif result.index is not None:
         console.print(f"index of {len(result.entries)} reports: {result.index}", highlight=False, markup=False)
@@ -199,10 +226,18 @@ def _cmd_measure(args: argparse.Namespace, console: Console) -> int:
     from kmpipe.stages.measure import run_session
 
     interactive = False if args.unattended else None
+    plan, out_dir = args.plan, args.output
+    if args.add_suggested is not None:
+        from kmpipe.formats.measurement_plan import load_plan
+        from kmpipe.stages.plan_addition import add_suggestion
+
+        plan, line = add_suggestion(args.plan, args.add_suggested)
+        out_dir = out_dir or plan.parent / f"{load_plan(plan).sample.name}-next"
+        console.print(f"measuring {plan} (the plan and {line}) into {out_dir}", highlight=False, markup=False)
     run_session(
-        args.plan,
+        plan,
         args.port,
-        out_dir=args.output,
+        out_dir=out_dir,
         record=args.record,
         resume=args.resume,
         interactive=interactive,
@@ -487,8 +522,23 @@ def build_parser() -> argparse.ArgumentParser:
         ("--delta-e-fail", "Delta E 2000 above which a measurement fails (default 2)"),
         ("--rmse-warn", "spectral RMSE above which a measurement warns (default 0.01)"),
         ("--rmse-fail", "spectral RMSE above which a measurement fails (default 0.02)"),
+        ("--uncertainty-warn", "rendered colour's 95 %% radius (Delta E 2000) above which a sample warns (default 1)"),
+        ("--uncertainty-fail", "rendered colour's 95 %% radius (Delta E 2000) above which a sample fails (default 2)"),
     ):
         validate.add_argument(name, type=_positive_arg, metavar="X", help=what)
+    validate.add_argument("--at", type=_thickness_arg, metavar="THICKNESS",
+                          help="judge the rendered colour of a film this thick, e.g. '15 um' (default: the median "
+                          "measured film)")  # fmt: skip
+    validate.add_argument("--over", metavar="SUBSTRATE",
+                          help="... over this: a backing of the sample, a reflectance 0-1, 'colorchecker:NAME' or "
+                          "FILE.csv[:COLUMN] (default: the lightest backing)")  # fmt: skip
+    validate.add_argument(
+        "--draws",
+        type=_draws_arg,
+        default=1000,
+        metavar="N",
+        help="Monte Carlo draws that check the linearized radius (default 1000; 0: none)",
+    )
     validate.set_defaults(run=_cmd_validate)
 
     measure = commands.add_parser(
@@ -512,6 +562,10 @@ def build_parser() -> argparse.ArgumentParser:
         "recording of the same plan)",
     )
     measure.add_argument("--resume", action="store_true", help="continue an interrupted session in the folder")
+    measure.add_argument("--add-suggested", type=Path, metavar="VALIDATION.json",
+                         help="add the measurement that validation found would shrink the rendered colour's "
+                         "uncertainty most: writes PLAN.next.toml and measures it (default -o: "
+                         "SAMPLE-next/)")  # fmt: skip
     measure.add_argument("--unattended", action="store_true", help="never prompt (the default when not at a terminal)")
     measure.add_argument("--baudrate", type=int, default=115200, help="RS-232 only (USB ignores it); default 115200")
     measure.add_argument("--rtscts", action="store_true", help="RTS/CTS flow control (the CS-2000's RS-232 default)")

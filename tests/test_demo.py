@@ -10,6 +10,8 @@ import subprocess
 import tomllib
 from pathlib import Path
 
+from kmpipe.formats.recipe import slug
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -44,8 +46,16 @@ def test_the_demo_measures_runs_the_line_and_renders(tmp_path):
     assert (line / "reports" / "index.html").is_file()
     # The second run ran nothing.
     assert "0 tasks run" in done.stdout.split("every task is cached")[1]
+
     # The sheet: a row per product, four angles.
-    labels = [f"{p['name']} · {p['shade']}" for p in products]
+    # (each validated product's label ends with its rendered colour's 95 % uncertainty, from its validation.json)
+    def doubt(product: dict) -> str:
+        report = line / "reports" / slug(product["name"]) / "validation.json"
+        if not report.is_file():
+            return ""
+        return f" ±{json.loads(report.read_text(encoding='utf-8'))['uncertainty']['radius_delta_e_2000_95']:.2f}"
+
+    labels = [f"{p['name']} · {p['shade']}{doubt(p)}" for p in products]
     layout = sheet_layout(labels, ["0°", "90°", "180°", "270°"], header="Demo line · D65")
     assert read_png(line / "sheet.png").shape == (layout.height, layout.width, 3)
     header = read_header(next(line.glob("frames/the-look/frame_002.exr")))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import tomllib
 from pathlib import Path
 
@@ -792,3 +793,47 @@ def test_a_skin_panel_is_measured_like_any_reading_and_becomes_review_tones(tmp_
     assert "skin" not in manifest and len(manifest["film"]) == 4  # the sample's fit is as before
     tones = read_tones(["reflectance.csv:skin_V07"], np.arange(380.0, 781.0, 5.0), folder, {})
     assert [(t.id, t.name, t.site, t.kind) for t in tones] == [("skin-v07", "skin_V07", "cheek", "measured")]
+
+
+def test_the_suggested_measurement_is_measured_as_a_plan_addition(tmp_path, capsys):
+    """Measure F1, fit, validate; measure again with --add-suggested: the plan gets the suggested film (the emulator
+    holds it, made from F1's truth), and the refitted material's radius shrinks as the validation predicted."""
+    from kmpipe.formats.spectra import SpectralTable, write_spectra_csv
+    from kmpipe.physics.kubelka_munk import reflectance_over_background
+
+    with emulator_from_script(F1 / "emulator.toml", time_scale=TIME_SCALE, link=tmp_path / "cs2000") as emulator:
+        assert measure(capsys, emulator.link, tmp_path / "F1")[0] == 0
+    assert kmpipe(capsys, "fit", tmp_path / "F1" / "manifest.toml", "-o", tmp_path / "F1.json")[0] == 0
+    at = ("--at", "15 um", "--over", "white", "--draws", "0")  # judged where the product is worn, both times
+    assert kmpipe(capsys, "validate", tmp_path / "F1.json", "-o", tmp_path / "report", *at)[0] == 0
+    report = json.loads((tmp_path / "report" / "validation.json").read_text(encoding="utf-8"))
+    best = report["uncertainty"]["next_measurement"][0]
+    assert best["role"] in ("film", "repeat") and best["over"] in ("black", "white")
+    plan = tmp_path / "plan.toml"
+    shutil.copy(PLAN, plan)
+    # the emulator's samples, and the suggested film: made from the truth the others were made from, or a repeat
+    script = (F1 / "emulator.toml").read_text(encoding="utf-8")
+    table = read_spectra_csv(F1 / "emulator_reflectance.csv")
+    truth = json.loads((F1 / "truth.json").read_text(encoding="utf-8"))
+    K, S = (np.interp(table.wavelengths, truth["wavelengths_nm"], truth[q]) for q in ("K_per_mm", "S_per_mm"))
+    um = float(best["thickness"].split()[0])
+    added = reflectance_over_background(K, S, um / 1000.0, table.column(f"{best['over']}_card"))
+    samples = SpectralTable(table.wavelengths, None, (*table.columns, "added"), np.vstack([table.values, added]),
+                            table.metadata)  # fmt: skip
+    write_spectra_csv(samples, tmp_path / "samples.csv")
+    script = script.replace('file = "emulator_reflectance.csv"', f'file = "{tmp_path / "samples.csv"}"')
+    script = script.replace('"film_30um_over_white"]', '"film_30um_over_white", "added"]')
+    (tmp_path / "emulator.toml").write_text(script, encoding="utf-8")
+    with emulator_from_script(tmp_path / "emulator.toml", time_scale=TIME_SCALE, link=tmp_path / "cs") as emulator:
+        status, err = measure(capsys, emulator.link, tmp_path / "F1-next", "--add-suggested",
+                              tmp_path / "report" / "validation.json", plan=plan)  # fmt: skip
+    assert status == 0, err
+    text = (tmp_path / "plan.next.toml").read_text(encoding="utf-8")
+    assert text.startswith(PLAN.read_text(encoding="utf-8").rstrip("\n")) and best["line"] in text
+    manifest = (tmp_path / "F1-next" / "manifest.toml").read_text(encoding="utf-8")
+    assert manifest.count("[[film]]") == 5 and f'thickness = "{best["thickness"]}' in manifest
+    assert kmpipe(capsys, "fit", tmp_path / "F1-next" / "manifest.toml", "-o", tmp_path / "F1-next.json")[0] == 0
+    assert kmpipe(capsys, "validate", tmp_path / "F1-next.json", "-o", tmp_path / "next", *at)[0] == 0
+    after = json.loads((tmp_path / "next" / "validation.json").read_text(encoding="utf-8"))
+    radius = after["uncertainty"]["radius_delta_e_2000_95"]
+    assert radius < best["today"] and radius == pytest.approx(best["radius"], rel=0.2)

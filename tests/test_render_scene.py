@@ -592,7 +592,7 @@ def test_more_bands_than_the_materials_wavelengths_exits_2(tmp_path, material_fi
     full = read_material(material_file)
     measurements = tuple(dataclasses.replace(m, residuals=m.residuals[:4]) for m in full.measurements)
     cut = {"wavelengths": full.wavelengths[:4], "K": full.K[:4], "S": full.S[:4], "flags": full.flags[:4],
-           "K_stderr": None, "S_stderr": None, "measurements": measurements}  # fmt: skip
+           "K_stderr": None, "S_stderr": None, "measurements": measurements, "budget": None}  # fmt: skip
     write_material(dataclasses.replace(full, **cut), tmp_path / "four.json")
     path = write_scene(tmp_path, tmp_path / "four.json", mode_line='mode = "bands:5"')
     err = _render_status(tmp_path, path, capsys)

@@ -24,8 +24,10 @@ from kmpipe.errors import InputError
 from kmpipe.formats.thresholds import Thresholds
 from kmpipe.physics.kubelka_munk import reflectance_infinite, reflectance_over_background
 from kmpipe.validation.findings import Finding, report_to_dict
+from kmpipe.validation.html_parts import DPI
 from kmpipe.validation.material import validate_material
-from kmpipe.validation.report import DPI, KS_SIZE, SPECTRA_SIZE, swatch_figsize, write_index, write_sample_report
+from kmpipe.validation.report import KS_SIZE, SPECTRA_SIZE, swatch_figsize, write_index, write_sample_report
+from kmpipe.validation.uncertainty_page import FIGURE_SIZE
 
 ROOT = Path(__file__).resolve().parents[1]
 F1_MANIFEST = ROOT / "recipes" / "samples" / "F1" / "manifest.toml"
@@ -99,6 +101,8 @@ def test_page_embeds_every_figure_as_a_png_of_the_stated_size(f1_report, tmp_pat
         "plot-spectra": pixels(SPECTRA_SIZE),
         "plot-ks": pixels(KS_SIZE),
         "plot-swatches": pixels(swatch_figsize(len(f1_report.measurements))),
+        # the rendered colour's doubt under each illuminant validated
+        **{f"plot-uncertainty-{i + 1}": pixels(FIGURE_SIZE) for i in range(len(f1_report.illuminants))},
     }
     assert set(found) == set(expected)
     for element_id, (tag, data) in found.items():

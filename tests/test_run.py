@@ -312,9 +312,10 @@ def test_second_run_does_nothing_and_a_change_reruns_only_what_it_affects(tmp_pa
     csv.write_text("".join(lines), encoding="utf-8")
     assert run_tasks(recipe, out) == material_tasks(L1) | render_tasks(L1, FACE) | {"reports", "sheet"}
 
-    # A render-only setting of L1 (its layer's thickness): L1's render tasks and the sheet.
+    # L1's render thickness: where L1's rendered colour is validated (its uncertainty at that thickness), so L1's
+    # validation, the renders that carry its verdict and radius (L1's and the face's), the index and the sheet.
     edit(recipe, 'thickness = "1 mm"', 'thickness = "0.9 mm"')
-    assert run_tasks(recipe, out) == render_tasks(L1) | {"sheet"}
+    assert run_tasks(recipe, out) == {f"validate:{L1}"} | render_tasks(L1, FACE) | {"reports", "sheet"}
 
     # A thickness map only the face reads: the face's render tasks and the sheet.
     y, x = np.mgrid[0:32, 0:32] / 31.0

@@ -119,6 +119,7 @@ def test_the_run_task_writes_the_report_kmpipe_validate_writes(line, tmp_path, c
         "verdict": document["verdict"],
         "reasons": document["reasons"],
         "worst_delta_e": document["worst_delta_e_2000"],
+        "colour_radius": document["uncertainty"]["radius_delta_e_2000_95"],
     }
 
 

@@ -782,12 +782,13 @@ def test_bad_threshold_config_names_the_field(tmp_path, text, field_name):
 
 @settings(max_examples=60, deadline=None)
 @given(
-    st.lists(st.floats(min_value=1e-9, max_value=1e9, allow_nan=False, allow_infinity=False), min_size=9, max_size=9)
+    st.lists(st.floats(min_value=1e-9, max_value=1e9, allow_nan=False, allow_infinity=False), min_size=11, max_size=11)
 )
 def test_any_valid_config_reads_back_exactly(tmp_path_factory, values):
     names = [f.name for f in dataclasses.fields(Thresholds)]
     values[0:2], values[2:4] = sorted(values[0:2]), sorted(values[2:4])  # warn <= fail
     values[5:7] = sorted(values[5:7])  # ks_min <= ks_max
+    values[9:11] = sorted(values[9:11])  # uncertainty_warn <= uncertainty_fail
     config = tmp_path_factory.mktemp("config") / "limits.toml"
     config.write_text(
         "[thresholds]\n" + "".join(f"{n} = {v!r}\n" for n, v in zip(names, values, strict=True)), encoding="utf-8"
@@ -881,8 +882,10 @@ def test_every_check_has_a_fixture_that_fires_it(request):
     seen = set()
     for name in ALL_CASES:
         seen |= set(codes(request.getfixturevalue(name).report))
-    # masstone_not_opaque, delta_e/rmse (via thresholds) and inputs_changed have tests of their own.
-    assert set(CHECKS) - seen <= {"masstone_not_opaque", "inputs_changed"}
+    # masstone_not_opaque, delta_e/rmse (via thresholds) and inputs_changed have tests of their own, and so have the
+    # rendered colour's checks (test_uncertainty.py).
+    own = {"masstone_not_opaque", "inputs_changed", "colour_uncertainty", "uncertainty_nonlinear", "not_separable"}
+    assert set(CHECKS) - seen <= own
 
 
 # --- kmpipe validate ----------------------------------------------------------------------------------------

@@ -27,6 +27,10 @@ from kmpipe.formats.toml_input import (
 )
 
 METHODS = ("two-constant", "black-white", "lsq")
+#: Standard uncertainty (k = 1) of a white standard's reflectance where the manifest states none: the typical curve
+#: (``builtin:baso4``) stands for a pressed BaSO4 that may differ from it by about 1 %; a certificate's own figure is
+#: usually 0.3-0.5 %.
+WHITE_UNCERTAINTY = {"builtin": 0.01, "certificate": 0.005}
 #: Thickest film a TOML format may give (mm): far beyond any drawdown, small enough that (K X)^2 stays finite for
 #: every K a material may hold.
 MAX_THICKNESS_MM = 100.0
@@ -42,6 +46,7 @@ _LENGTH_UNITS_MM = {
     "μm": Decimal("1e-3"),
     "mm": Decimal(1),
 }
+_PLUS_MINUS = ("+-", "±", "+/-")
 _LENGTH = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*([a-zµμ]+)\s*$")
 
 
@@ -51,6 +56,11 @@ def parse_thickness_mm(text: str, *, allow_zero: bool = False) -> float:
 
     Raises ValueError with what was expected.
     """
+    if any(mark in str(text) for mark in _PLUS_MINUS):
+        raise ValueError(
+            f"takes no uncertainty, got {text!r}: a '+-' belongs to a measured film's thickness (a [[film]] of a "
+            "manifest or a plan); a masstone is fitted as opaque and a render thickness is exact"
+        )
     match = _LENGTH.match(str(text))
     if not match or match.group(2) not in _LENGTH_UNITS_MM:
         raise ValueError(
@@ -68,6 +78,39 @@ def parse_thickness_mm(text: str, *, allow_zero: bool = False) -> float:
     return value
 
 
+def parse_measured_thickness(text: str) -> tuple[float, float]:
+    """A measured film's thickness: '30 um' -> (0.03, 0.0); '30 um +- 2 um' or '30 um ± 2 um' -> (0.03, 0.002);
+    '30 um +- 5 %' -> (0.03, 0.0015). The uncertainty is a standard uncertainty (one standard deviation, k = 1), in
+    mm; 0 when none is stated. Raises ValueError with what was expected.
+
+    >>> parse_measured_thickness("30 um +- 2 um")
+    (0.03, 0.002)
+    """
+    text = str(text)
+    mark = next((m for m in _PLUS_MINUS if m in text), None)
+    if mark is None:
+        return parse_thickness_mm(text), 0.0
+    value_text, _, doubt = text.partition(mark)
+    value = parse_thickness_mm(value_text)
+    doubt = doubt.strip()
+    percent = re.match(r"^([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*%$", doubt)
+    try:
+        u = value * float(percent.group(1)) / 100.0 if percent else parse_thickness_mm(doubt, allow_zero=True)
+    except ValueError:
+        u = math.nan
+    if not (math.isfinite(u) and 0.0 <= u < value):
+        raise ValueError(
+            f"expected a thickness and its standard uncertainty, like '30 um +- 2 um' or '30 um +- 5 %' (an "
+            f"uncertainty >= 0 and below the thickness), got {text!r}"
+        )
+    return value, u
+
+
+def _checked_measured(value: str) -> str:
+    parse_measured_thickness(value)
+    return value
+
+
 def _checked_thickness(value: str) -> str:
     parse_thickness_mm(value)
     return value
@@ -78,6 +121,8 @@ def _checked_thickness_or_zero(value: str) -> str:
     return value
 
 
+#: A measured film's thickness, with an optional standard uncertainty ("30 um +- 2 um"): manifests and plans.
+MeasuredThickness = Annotated[str, AfterValidator(_checked_measured)]
 #: A thickness field as people write it ("30 um", "0.03 mm"), checked on reading; every TOML format uses it.
 Thickness = Annotated[str, AfterValidator(_checked_thickness)]
 #: The same, where no film at all ("0 um") makes sense: render scenes.
@@ -129,6 +174,20 @@ class ColumnRef(StrictModel):
 class WhiteReference(ColumnRef):
     certified: str = "builtin:baso4"
     dark: ColumnRef | None = None
+    #: Standard uncertainty of the certified reflectance (k = 1): a fraction, or a CSV 'PATH:COLUMN' of one per
+    #: wavelength; None: :data:`WHITE_UNCERTAINTY` of the kind of certificate.
+    uncertainty: float | str | None = None
+
+    @field_validator("uncertainty")
+    @classmethod
+    def _uncertainty(cls, value):
+        if isinstance(value, bool) or (isinstance(value, float | int) and not (0.0 <= value <= 0.1)):
+            raise ValueError(
+                f"expected a standard uncertainty in [0, 0.1] (a fraction) or 'PATH:COLUMN', got {value!r}"
+            )
+        if isinstance(value, str) and not value.strip():
+            raise ValueError("expected a standard uncertainty in [0, 0.1] (a fraction) or 'PATH:COLUMN'")
+        return value
 
 
 class Backing(ColumnRef):
@@ -147,11 +206,16 @@ class Masstone(ColumnRef):
 
 class Film(ColumnRef):
     over: str = Field(min_length=1)
-    thickness: Thickness
+    thickness: MeasuredThickness
 
     @property
     def thickness_mm(self) -> float:
-        return parse_thickness_mm(self.thickness)
+        return parse_measured_thickness(self.thickness)[0]
+
+    @property
+    def thickness_u_mm(self) -> float:
+        """Standard uncertainty of the thickness (mm); 0 where the manifest states none."""
+        return parse_measured_thickness(self.thickness)[1]
 
 
 class FitSettings(StrictModel):
@@ -274,13 +338,16 @@ def manifest_files(path: str | Path, manifest: Manifest | None = None) -> tuple[
         data = (path.parent / ref.file).resolve()
         if data not in found:
             found.append(data)
-    spec = None if manifest.white is None else manifest.white.certified
-    if spec is not None and spec != BUILTIN_BASO4:
+    white = manifest.white
+    named = [] if white is None else [("certified", white.certified), ("uncertainty", white.uncertainty)]
+    for key, spec in named:  # the certificate and its uncertainty, where they are files
+        if not isinstance(spec, str) or spec == BUILTIN_BASO4:
+            continue
         try:
-            certificate = certified_file(spec, path.parent)[0].resolve()
+            table = certified_file(spec, path.parent)[0].resolve()
         except InputError as err:
-            raise InputError(err.message, path=path, line=field_line(path, "white.certified"),
-                             field="white.certified") from None  # fmt: skip
-        if certificate not in found:
-            found.append(certificate)
+            raise InputError(err.message, path=path, line=field_line(path, f"white.{key}"),
+                             field=f"white.{key}") from None  # fmt: skip
+        if table not in found:
+            found.append(table)
     return tuple(found)

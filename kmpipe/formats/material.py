@@ -17,6 +17,8 @@ from kmpipe.errors import InputError
 from kmpipe.formats import files
 from kmpipe.formats.atomic_write import write_text_atomically
 from kmpipe.formats.files import name_problem
+from kmpipe.formats.material_budget import budget_from_dict, budget_to_dict
+from kmpipe.physics.fit_covariance import Budget
 from kmpipe.physics.flags import Flag, wavelengths_by_flag
 
 FORMAT = "kmpipe-material/1"
@@ -78,6 +80,7 @@ class Material:
     fit: dict
     measurements: tuple[MeasurementFit, ...]
     provenance: dict = field(default_factory=dict)
+    budget: Budget | None = None  # the uncertainty budget of K and S (kmpipe.physics.fit_covariance)
 
     @property
     def labels(self) -> list:
@@ -132,6 +135,7 @@ def material_to_dict(material: Material) -> dict:
             for m in material.measurements
         ],
         "provenance": material.provenance,
+        **({} if material.budget is None else {"uncertainty": budget_to_dict(material.budget)}),
     }
 
 
@@ -366,6 +370,9 @@ def _check_document(doc, path: Path) -> Material:
     measurements = check.get(doc, "measurements", "")
     if not isinstance(measurements, list):
         check.fail("measurements", f"expected a list, got {_kind(measurements)}")
+    budget = check.get(doc, "uncertainty", "", None)
+    if budget is not None:
+        budget = budget_from_dict(budget, K, S, check.fail)
     return Material(
         name=name,
         product=check.text(check.get(doc, "product", "", ""), "product"),
@@ -382,4 +389,5 @@ def _check_document(doc, path: Path) -> Material:
         fit=fit,
         measurements=tuple(_check_measurement(m, i, n, check) for i, m in enumerate(measurements)),
         provenance=provenance,
+        budget=budget,
     )

@@ -15,7 +15,7 @@ from pydantic import Field, field_validator
 
 from kmpipe.errors import InputError
 from kmpipe.formats.files import name_problem, sha256
-from kmpipe.formats.manifest import Thickness, parse_thickness_mm
+from kmpipe.formats.manifest import MeasuredThickness, Thickness, parse_measured_thickness
 from kmpipe.formats.toml_input import StrictModel, read_model, toml_line
 
 
@@ -51,16 +51,14 @@ class PlanBacking(StrictModel):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
 
 
-class _WithThickness(StrictModel):
-    thickness: Thickness | None = None  # e.g. "30 um"
+class PlanMasstone(StrictModel):
+    thickness: Thickness | None = None  # e.g. "200 um"
 
 
-class PlanMasstone(_WithThickness):
-    pass
-
-
-class PlanFilm(_WithThickness):
+class PlanFilm(StrictModel):
+    thickness: MeasuredThickness | None = None  # e.g. "30 um" or "30 um +- 2 um"
     over: str
+    name: str | None = Field(default=None, min_length=1, max_length=60, pattern=r"^[A-Za-z0-9_-]+$")  # reading name
 
 
 class PlanSkin(StrictModel):
@@ -135,10 +133,10 @@ def positions(plan: Plan, thickness_of=None) -> list[Position]:
             raise InputError(
                 "has no thickness; give it in the plan for an unattended session", field=f"film[{i + 1}].thickness"
             )
-        um = parse_thickness_mm(thickness) * 1000.0
+        um = parse_measured_thickness(thickness)[0] * 1000.0
         add(
             "film",
-            f"film_{um:g}um_over_{film.over}",
+            film.name or f"film_{um:g}um_over_{film.over}",
             f"the {thickness} film over {film.over}",
             repeats,
             over=film.over,

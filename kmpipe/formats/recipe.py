@@ -48,6 +48,8 @@ class ValidationInfo(StrictModel):
     delta_e_fail: float | None = None
     rmse_warn: float | None = None
     rmse_fail: float | None = None
+    uncertainty_warn: float | None = None  # the rendered colour's 95 % radius, Delta E 2000
+    uncertainty_fail: float | None = None
 
     @field_validator("illuminants")
     @classmethod
@@ -444,3 +446,31 @@ def _check_product_scene(recipe: Recipe, index: int) -> None:
             target = recipe.base / table["albedo_texture"]
             if not target.is_file():
                 raise InputError(f"names {target}, which does not exist", **where((key, "albedo_texture")))
+
+
+#: Most render contexts in which one material's rendered colour is validated.
+MAX_CONTEXTS = 4
+
+
+def render_contexts(recipe: Recipe, material: str) -> list[dict]:
+    """Where the material of product ``material`` is rendered in the line: each layer made of it with a uniform
+    thickness, over its product's substrate or skin (a context of :func:`kmpipe.validation.material.validate_material`:
+    ``label``, ``thickness_mm``, ``over``, ``base``), at most :data:`MAX_CONTEXTS`, each once."""
+    from kmpipe.formats.manifest import parse_thickness_mm
+    from kmpipe.formats.scene import SkinInfo
+
+    found: dict[tuple, dict] = {}
+    for product in recipe.info.product:
+        for layer in product.layer:
+            named = product.name if layer.get("material") == SELF else layer.get("material")
+            if named != material or not isinstance(layer.get("thickness"), str):
+                continue
+            data = recipe.scene_data(product, {p.name: Path(p.name) for p in recipe.info.product})
+            base = data.get("substrate") or data.get("skin") or {}
+            over = base.get("reflectance", SkinInfo.model_fields["reflectance"].default)
+            thickness = parse_thickness_mm(layer["thickness"], allow_zero=True)
+            key = (thickness, str(over))
+            if key not in found and thickness > 0.0 and len(found) < MAX_CONTEXTS:
+                found[key] = {"label": f"{product.name}: {layer['thickness']} over {over}", "thickness_mm": thickness,
+                              "over": over, "base": str(recipe.base), "field": f"product {product.name!r}"}  # fmt: skip
+    return list(found.values())

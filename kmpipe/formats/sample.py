@@ -14,11 +14,18 @@ import numpy as np
 
 from kmpipe.errors import InputError
 from kmpipe.formats.files import regular_file
-from kmpipe.formats.manifest import FitSettings, Manifest, load_manifest, manifest_files, parse_grid
+from kmpipe.formats.manifest import (
+    WHITE_UNCERTAINTY,
+    FitSettings,
+    Manifest,
+    load_manifest,
+    manifest_files,
+    parse_grid,
+)
 from kmpipe.formats.spectra import SpectralTable, read_spectra_csv
 from kmpipe.formats.spectral_grid import resample, uniform_grid
 from kmpipe.formats.toml_input import field_line
-from kmpipe.physics.white import ReadingSource, certified_reflectance, radiance_to_reflectance
+from kmpipe.physics.white import ReadingSource, certified_reflectance, certified_uncertainty, radiance_to_reflectance
 
 #: Default fitting step (nm) for finer data: 8x faster than 1 nm for a median Delta E 2000 of 0.04
 #: (docs/benchmarks.md, "Wavelength grid").
@@ -47,6 +54,7 @@ class Measurement:
     over: str | None
     thickness_mm: float  # inf for a masstone (the fit treats it as opaque)
     declared_mm: float | None = None  # a masstone's thickness as drawn, if the manifest gives it
+    thickness_u_mm: float = 0.0  # a film's thickness's standard uncertainty ("30 um +- 2 um"); 0: none stated
 
 
 @dataclass(frozen=True)
@@ -64,6 +72,7 @@ class Sample:
     backings: dict[str, np.ndarray]  # name -> (n,) measured reflectance of the bare backing
     settings: FitSettings
     inputs: tuple[Path, ...]  # every file read, manifest first (manifest_files)
+    white_u: np.ndarray | None = None  # (n,) relative standard uncertainty of the white standard; None: no [white]
 
     @property
     def labels(self) -> list:
@@ -266,6 +275,7 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
                     over=ref.over if is_film else None,
                     thickness_mm=ref.thickness_mm if is_film else float("inf"),
                     declared_mm=None if is_film else ref.thickness_mm,
+                    thickness_u_mm=ref.thickness_u_mm if is_film else 0.0,
                 )
             )
             readings.append(reflectance(ref, path))
@@ -282,4 +292,22 @@ def load_sample(manifest_path: str | Path, *, grid: str | np.ndarray | None = No
         backings=backings,
         settings=manifest.fit,
         inputs=manifest_files(manifest_path, manifest),
+        white_u=None if manifest.white is None else _white_u(manifest, fit_grid, certified, manifest_path),
     )
+
+
+def _white_u(manifest: Manifest, grid: np.ndarray, certified: np.ndarray, manifest_path: Path) -> np.ndarray:
+    """Relative standard uncertainty u(R_white) / R_white (n,) of the white standard: the manifest's
+    ``white.uncertainty`` (a fraction, or PATH:COLUMN), else :data:`kmpipe.formats.manifest.WHITE_UNCERTAINTY`."""
+    given = manifest.white.uncertainty
+    if given is None:
+        kind = "builtin" if manifest.white.certified.startswith("builtin:") else "certificate"
+        return WHITE_UNCERTAINTY[kind] / certified
+    if not isinstance(given, str):
+        return float(given) / certified
+    try:
+        return certified_uncertainty(given, grid, base_dir=manifest_path.parent) / certified
+    except InputError as err:
+        raise named_in(
+            err, manifest_path, "white.uncertainty", field_line(manifest_path, "white.uncertainty")
+        ) from None

@@ -292,7 +292,7 @@ class Scene:
         return self.substrate
 
 
-def _reflectance(value: float | str, wavelengths: np.ndarray, base: Path, where: dict) -> np.ndarray:
+def resolve_reflectance(value: float | str, wavelengths: np.ndarray, base: Path, where: dict) -> np.ndarray:
     """A flat reflectance, a ColorChecker patch or a spectral CSV column, on ``wavelengths`` (nm)."""
     from kmpipe.formats.spectra import read_spectra_csv
     from kmpipe.formats.spectral_grid import resample
@@ -462,7 +462,7 @@ def build_scene(data: dict, path: Path, base: Path, where: Locator) -> Scene:
             )
         mesh = mesh.copy()
         mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)))  # uniform films: unused
-    substrate = _reflectance(info.base.reflectance, materials[0].wavelengths, base, where((key, "reflectance")))
+    substrate = resolve_reflectance(info.base.reflectance, materials[0].wavelengths, base, where((key, "reflectance")))
     albedo, normals, roughness = textures.base_colour, textures.normal, None
     if info.base.albedo_texture is not None:
         albedo = albedo_texture(info.base.albedo_texture, info.base.albedo_encoding, base,

@@ -23,6 +23,8 @@ class Thresholds:
     ks_max: float = 200.0  # K/S above: extreme (R_inf below ~0.0025)
     noise_factor: float = 3.0  # residual_above_noise: residual / repeat spread; also the sigma multiple of checks
     runs_z: float = 3.5  # structured_residuals: |z| of the Wald-Wolfowitz runs test
+    uncertainty_warn: float = 1.0  # colour_uncertainty: the rendered colour's 95 % radius, Delta E 2000
+    uncertainty_fail: float = 2.0
 
     @classmethod
     def from_toml(cls, path: Path) -> Thresholds:
@@ -54,7 +56,12 @@ class Thresholds:
                 raise InputError(f"expected a positive number, got {value!r}", path=_source, field=prefix + key)
             given[key] = float(value)
         out = replace(self, **given)
-        for low, high in (("delta_e_warn", "delta_e_fail"), ("rmse_warn", "rmse_fail"), ("ks_min", "ks_max")):
+        for low, high in (
+            ("delta_e_warn", "delta_e_fail"),
+            ("rmse_warn", "rmse_fail"),
+            ("ks_min", "ks_max"),
+            ("uncertainty_warn", "uncertainty_fail"),
+        ):
             if getattr(out, low) > getattr(out, high):
                 raise InputError(
                     f"{low} ({getattr(out, low):g}) exceeds {high} ({getattr(out, high):g})",

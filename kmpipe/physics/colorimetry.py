@@ -172,3 +172,12 @@ def reflectance_to_sRGB(reflectance, wavelengths, illuminant: str = "D65", obser
     white = white_XYZ(wavelengths, illuminant, observer) / 100.0
     RGB = colour.XYZ_to_sRGB(XYZ, illuminant=colour.XYZ_to_xy(white), chromatic_adaptation_transform="CAT02")
     return np.clip(RGB, 0.0, 1.0)
+
+
+def Lab_to_sRGB(Lab, wavelengths, illuminant: str = "D65", observer: str = "2") -> np.ndarray:
+    """Display sRGB in [0, 1] of CIELAB relative to the perfect white under ``illuminant`` on the grid, CAT02-adapted
+    to D65 as :func:`reflectance_to_sRGB` adapts (so a reflectance's Lab gives its sRGB)."""
+    white = colour.XYZ_to_xy(white_XYZ(wavelengths, illuminant, observer) / 100.0)
+    XYZ = colour.Lab_to_XYZ(np.asarray(Lab, dtype=np.float64), white)
+    RGB = colour.XYZ_to_sRGB(XYZ, illuminant=white, chromatic_adaptation_transform="CAT02")
+    return np.clip(RGB, 0.0, 1.0)

@@ -50,6 +50,7 @@ class JointFit:
     algorithm: str
     evaluations: int
     status: str
+    penalty_scales: tuple[float, float] = (1.0, 1.0)  # K_bar, S_bar of the smoothness term
 
 
 def _film_and_derivatives(K, S, X, G):
@@ -384,6 +385,7 @@ def fit_joint(
         algorithm=ALGORITHM,
         evaluations=evaluations,
         status=status,
+        penalty_scales=(K_bar, S_bar),
     )
 
 

@@ -133,6 +133,37 @@ def certified_reflectance(spec: str, wavelengths_nm: Sequence[float] | np.ndarra
     return values
 
 
+def certified_uncertainty(spec: str, wavelengths_nm: Sequence[float] | np.ndarray, *, base_dir: Path) -> np.ndarray:
+    """Standard uncertainty (k = 1, a fraction) of a white standard's certified reflectance, per wavelength, from the
+    column ``PATH:COLUMN`` (or the only column of ``PATH``) of a spectral CSV of quantity ``reflectance``, resampled to
+    ``wavelengths_nm``. InputError naming the file unless every value lies in [0, 0.1]."""
+    path, column = certified_file(spec, base_dir)
+    table = read_spectra_csv(path)
+    if table.wavelengths is None or table.quantity != "reflectance":
+        raise InputError(
+            f"white standard uncertainty '{spec}' must be a spectrum of quantity reflectance (its standard "
+            "uncertainty per wavelength, a fraction)",
+            path=path,
+        )
+    if column is None:
+        if len(table.columns) != 1:
+            raise InputError(f"white standard uncertainty '{spec}' has several columns; name one as PATH:COLUMN",
+                             path=path)  # fmt: skip
+        column = table.columns[0]
+    table.column(column)
+    grid = np.array(wavelengths_nm, dtype=float)
+    values = np.array(resample(table, grid).column(column))
+    bad = ~((values >= 0.0) & (values <= 0.1))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"white standard uncertainty is {format_number(values[i])} at {format_number(grid[i])} nm (column "
+            f"{column!r}); expected a standard uncertainty in [0, 0.1] (a fraction, not percent)",
+            path=path,
+        )
+    return values
+
+
 @dataclass(frozen=True)
 class ReadingSource:
     """Where radiance readings came from, so that refusals can name them.

@@ -165,6 +165,14 @@ def _arguments(plan: RunPlan, task: Task) -> dict:
         args["header"] = {"validation": "fail: " + ", ".join(failed) + " (rendered with --keep-going)"} if failed else {
             "validation": "pass or warn"}  # fmt: skip
         args["header"]["task_key"] = task.key  # a frame on disk with this key is not rendered again
+        radii = [
+            (plan.tasks[d].product, plan.tasks[d].result.get("colour_radius"))
+            for d in task.deps
+            if plan.tasks[d].kind == "validate" and plan.tasks[d].result.get("colour_radius") is not None
+        ]
+        if radii:  # the rendered colour's 95 % Delta E 2000 radius (kmpipe.validation.uncertainty)
+            args["header"]["colour_uncertainty"] = (f"±{radii[0][1]:.2f}" if len(radii) == 1 else
+                                                    ", ".join(f"{name} ±{r:.2f}" for name, r in radii))  # fmt: skip
     if task.kind == "reports":
         done = {plan.out_dir / plan.tasks[d].outputs[0] for d in task.deps if plan.tasks[d].state in ("cached", "run")}
         args["entries"] = [entry for entry in task.args["entries"] if Path(entry[0]) in done]

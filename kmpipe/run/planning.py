@@ -13,7 +13,7 @@ from pathlib import Path
 
 from kmpipe.errors import InputError
 from kmpipe.formats.files import is_regular, read_text, sha256, within
-from kmpipe.formats.recipe import Recipe, inside, load_recipe, slug
+from kmpipe.formats.recipe import Recipe, inside, load_recipe, render_contexts, slug
 from kmpipe.run.folder import LOCK, PRODUCTS, RECORDS, RECORDS_OWNER, STATE
 from kmpipe.run.tasks import (
     PLAN_FILE,
@@ -264,11 +264,13 @@ def plan_run(
             report = reports_dir / slug(product.name)
             whose = f"the report of {product.name}"
             claims.folder(rel(report), whose, "outputs.reports", own=True)
+            contexts = render_contexts(recipe, product.name)
             add(Task("validate", slug(product.name), product.name, (f"material:{slug(product.name)}",),
-                     task_key("validate", key, info.validation.illuminants, thresholds),
+                     task_key("validate", key, info.validation.illuminants, thresholds,
+                              [(c["thickness_mm"], c["over"]) for c in contexts], _files_of(recipe, contexts, hashed)),
                      (rel(report / "validation.json"), rel(report / "report.html")), do_validate,
                      {"material": str(folder / "material.json"), "out": str(report),
-                      "illuminants": info.validation.illuminants, "thresholds": thresholds},
+                      "illuminants": info.validation.illuminants, "thresholds": thresholds, "contexts": contexts},
                      (rel(report),)), whose, "outputs.reports")  # fmt: skip
 
     rows = []
@@ -451,6 +453,13 @@ def _scene_files(recipe: Recipe, data: dict, hashed: Callable[[Path], str]) -> d
     from kmpipe.formats.scene import SceneFile, referenced_files
 
     paths = referenced_files(SceneFile.model_validate(data), recipe.base)  # checked when the recipe was loaded
+    return {os.path.relpath(p, recipe.base): hashed(p) for p in paths if is_regular(p)}
+
+
+def _files_of(recipe: Recipe, contexts: list[dict], hashed: Callable[[Path], str]) -> dict[str, str]:
+    """SHA-256 of the spectral CSVs the render contexts of a validation read, by their path relative to the recipe."""
+    files = [str(c["over"]).partition(":")[0] for c in contexts]
+    paths = [recipe.base / f for f in files if f.lower().endswith(".csv")]
     return {os.path.relpath(p, recipe.base): hashed(p) for p in paths if is_regular(p)}
 
 

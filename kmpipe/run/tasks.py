@@ -99,15 +99,21 @@ def do_material(source: str, inputs: dict, out: str) -> dict:
     return {}
 
 
-def do_validate(material: str, out: str, illuminants: list[str], thresholds: dict) -> dict:
-    """Validate a fitted material and write its report into ``out``; its verdict and reasons."""
+def do_validate(
+    material: str, out: str, illuminants: list[str], thresholds: dict, contexts: list[dict] | None = None
+) -> dict:
+    """Validate a fitted material (its rendered colour in the line's ``contexts``) and write its report into
+    ``out``; its verdict and reasons."""
     from kmpipe.formats.thresholds import Thresholds
     from kmpipe.stages.validate import write_report
     from kmpipe.validation.material import validate_material
 
-    report = validate_material(material, illuminants=tuple(illuminants), thresholds=Thresholds(**thresholds))
+    report = validate_material(material, illuminants=tuple(illuminants), thresholds=Thresholds(**thresholds),
+                               contexts=contexts or None)  # fmt: skip
     write_report(report, out)
-    return {"verdict": report.verdict, "reasons": list(report.reasons), "worst_delta_e": report.worst_delta_e}
+    radius = None if report.uncertainty is None else round(report.uncertainty.worst.radius, 4)  # as validation.json
+    return {"verdict": report.verdict, "reasons": list(report.reasons), "worst_delta_e": report.worst_delta_e,
+            "colour_radius": radius}  # fmt: skip
 
 
 #: The recipe last loaded in this process, by its path and the SHA-256 of its text (render tasks share it).

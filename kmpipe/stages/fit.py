@@ -33,6 +33,7 @@ from kmpipe.physics.flags import Flag
 from kmpipe.physics.inversion import Inversion, black_white, two_constant
 from kmpipe.physics.joint_fit import fit_joint, predict_readings, standard_errors
 from kmpipe.physics.saunderson import saunderson_inverse
+from kmpipe.validation.doubts import sample_budget
 
 
 def _combine(inversions: list[Inversion]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -187,6 +188,8 @@ def fit_sample(
             status=result.status,
             smoothness=smoothness,
         )
+        if smoothness > 0.0:
+            fit_info["penalty_scales"] = list(result.penalty_scales)
     else:
         raise InputError(f"unknown method {method!r}; expected one of two-constant, black-white, lsq", field="--method")
 
@@ -205,6 +208,9 @@ def fit_sample(
         if noise is not None
         else ("residuals" if sigma is not None else "none (exactly determined)"),
     )
+    scales = tuple(fit_info.get("penalty_scales", (1.0, 1.0)))
+    uncertainty = sample_budget(sample, K, S, saunderson=saunderson, smoothness=smoothness if method == "lsq" else 0.0,
+                                penalty_scales=scales, noise=noise)  # fmt: skip
     measurements = tuple(
         MeasurementFit(id=m.id, role=m.role, over=m.over, thickness_mm=m.thickness_mm, residuals=residuals[i])
         for i, m in enumerate(sample.measurements)
@@ -225,6 +231,7 @@ def fit_sample(
         fit=fit_info,
         measurements=measurements,
         provenance={},
+        budget=uncertainty,
     )
 
 

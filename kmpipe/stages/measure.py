@@ -45,7 +45,7 @@ from kmpipe.formats.files import (
     regular_file,
     same_file,
 )
-from kmpipe.formats.manifest import parse_thickness_mm
+from kmpipe.formats.manifest import parse_measured_thickness
 from kmpipe.formats.measurement_plan import (
     Plan,
     PlanFilm,
@@ -446,7 +446,7 @@ def run_session(
         while True:
             text = console.input(f"Thickness of film {i + 1} (over {film.over}), e.g. 30 um: ").strip()
             try:
-                parse_thickness_mm(text)
+                parse_measured_thickness(text)
                 return text
             except ValueError as err:
                 console.print(f"[red]{escape(str(err))}[/]")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import colour
@@ -28,6 +29,7 @@ from kmpipe.formats.recipe import slug
 from kmpipe.formats.scene import HEAD_DIR
 from kmpipe.formats.skin_tones import SkinTone, read_tones
 from kmpipe.physics.colorimetry import reflectance_to_Lab, reflectance_to_sRGB, register_illuminant
+from kmpipe.physics.colour_uncertainty import colour_radius
 from kmpipe.physics.shade_match import broken_matches, made_up, masstone, pair_delta_e, rank_shades, shift_words
 
 #: Where the tiles look: the left cheek of the bundled head, from the camera's side (mm, from the head's centre).
@@ -93,6 +95,25 @@ class _Tiles:
         return tone_map(render_skin(frame), "reinhard")
 
 
+def _radius(material, thickness_mm: float, skin: np.ndarray, illuminant: str) -> float | None:
+    """The 95 % Delta E 2000 radius of the colour of ``material`` at ``thickness_mm`` over ``skin``
+    (:func:`kmpipe.physics.colour_uncertainty.colour_radius`, from the material's budget), or None without one."""
+    if material.budget is None:
+        return None
+    return round(colour_radius(material.budget, thickness_mm, skin, material.wavelengths, illuminant), 3)
+
+
+def _within(ranking, masstone_doubt: list[float | None]) -> bool | None:
+    """Whether the best shade's margin over the second lies within either masstone's radius (the two cannot be
+    told apart on the readings' evidence); None where that cannot be said."""
+    if ranking.second is None or ranking.margin is None:
+        return None
+    radii = [masstone_doubt[ranking.best], masstone_doubt[ranking.second]]
+    if any(r is None for r in radii):
+        return None
+    return bool(ranking.margin <= max(radii))
+
+
 def _with_swatch(tile: np.ndarray, srgb: np.ndarray) -> np.ndarray:
     """The tile (linear RGB) with a swatch of display colour ``srgb`` (encoded) in its lower right corner, framed."""
     out = np.array(tile, dtype=float)
@@ -144,6 +165,9 @@ def review_row(
     ranking = rank_shades(match[ref])
     worn_breaks = broken_matches(coverage, ref, threshold)
     shade_breaks = broken_matches(match, ref, threshold)
+    doubt = {(i, ill): _radius(m, f["thickness_mm"], skin, ill) for i, (m, f) in enumerate(zip(materials, foundations,
+             strict=True)) for ill in illuminants}  # fmt: skip
+    masstone_doubt = [_radius(m, math.inf, skin, reference) for m in materials]
     tiles = _Tiles(tone, Path(foundations[0]["material"]), folder, tile)
     bare = {}
     for ill in illuminants:
@@ -165,6 +189,7 @@ def review_row(
                 "made_up_lab": [round(float(v), 3) for v in lab_worn],
                 "masstone_lab": [round(float(v), 4) for v in reflectance_to_Lab(full[i], wavelengths, ill)],
                 "made_up_srgb": _hex(swatch),
+                "uncertainty_delta_e": doubt[i, ill],
                 "worn_match_breaks": bool(worn_breaks[j, i]),
                 "shade_match_breaks": bool(shade_breaks[j, i]),
                 "shift": shift_words(lab_worn, bare[ill]["lab"]),
@@ -188,6 +213,7 @@ def review_row(
         "best": shades[ranking.best],
         "second": None if ranking.second is None else shades[ranking.second],
         "margin_delta_e": None if ranking.margin is None else round(ranking.margin, 3),
+        "margin_within_uncertainty": _within(ranking, masstone_doubt),
         "cells": cells,
     }
     write_text_atomically(folder / "row.json", json.dumps(row, indent=1) + "\n")

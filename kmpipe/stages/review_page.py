@@ -22,7 +22,7 @@ FORMAT = "kmpipe-review/1"
 SHEET_CELL = 160
 CSV_COLUMNS = ("tone_id", "tone", "kind", "site", "ita_deg", "ita_class", "product", "shade", "thickness_mm",
                "illuminant", "coverage_delta_e", "match_delta_e", "best_shade", "worn_match_breaks",
-               "shade_match_breaks", "made_up_srgb", "shift")  # fmt: skip
+               "shade_match_breaks", "made_up_srgb", "shift", "uncertainty_delta_e_95")  # fmt: skip
 
 
 def _breaks(rows: list[dict], reference: str, threshold: float) -> list[dict]:
@@ -57,6 +57,12 @@ def _breaks(rows: list[dict], reference: str, threshold: float) -> list[dict]:
     return found
 
 
+def _doubt(values: dict) -> str:
+    """' · ±0.3' (the made-up colour's 95 % radius, Delta E 2000) for a page's cell; '' without a budget."""
+    radius = values.get("uncertainty_delta_e")
+    return "" if radius is None else f' · <span title="95 % uncertainty of the made-up colour">±{radius:.1f}</span>'
+
+
 def _csv(rows: list[dict]) -> str:
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
@@ -68,7 +74,8 @@ def _csv(rows: list[dict]) -> str:
                 writer.writerow([tone["id"], tone["name"], tone["kind"], tone["site"] or "", tone["ita_deg"],
                                  tone["ita_class"], cell["product"], cell["shade"], cell["thickness_mm"], ill,
                                  v["coverage_delta_e"], v["match_delta_e"], row["best"], v["worn_match_breaks"],
-                                 v["shade_match_breaks"], v["made_up_srgb"], v["shift"]])  # fmt: skip
+                                 v["shade_match_breaks"], v["made_up_srgb"], v["shift"],
+                                 "" if v.get("uncertainty_delta_e") is None else v["uncertainty_delta_e"]])  # fmt: skip
     return text.getvalue()
 
 
@@ -86,9 +93,13 @@ def _sheet(rows: list[dict], folders: list[Path], illuminants: list[str], header
                 mark = " best" if cell["shade"] == row["best"] else ""
                 mark += " breaks" if v["worn_match_breaks"] or v["shade_match_breaks"] else ""
                 frames.append(folder / v["tile"])
-                captions.append(f"cov {v['coverage_delta_e']:.1f} / {v['match_delta_e']:.1f}{mark}")
+                doubt = "" if v.get("uncertainty_delta_e") is None else f" ±{v['uncertainty_delta_e']:.1f}"
+                captions.append(f"cov {v['coverage_delta_e']:.1f} / {v['match_delta_e']:.1f}{doubt}{mark}")
     columns = [f"{ill} · {name}" for ill in illuminants for name in ["bare", *shades]]
-    legend = "under each shade: cov (Delta E 2000, bare vs made-up) / match (Delta E 2000, shade vs tone)"
+    legend = (
+        "under each shade: cov (Delta E 2000, bare vs made-up) / match (Delta E 2000, shade vs tone) ±the "
+        "made-up colour's 95 % uncertainty"
+    )
     sheet = make_sheet(frames, rows=[r["tone"]["name"] for r in rows], columns=columns, header=f"{header} · {legend}",
                        cell_size=(SHEET_CELL, SHEET_CELL), font_size=13, captions=captions)  # fmt: skip
     write_sheet(sheet, out)
@@ -140,7 +151,9 @@ def _html(document: dict, folders: list[str]) -> str:
                  f'{e(tone["kind"])}{site}</small></td>', f'<td data-value="{tone["ita_deg"]}">{tone["ita_deg"]:.1f}° '
                  f'<small>{e(tone["ita_class"])}</small></td>',
                  f'<td>{e(row["best"])}<br><small>then {e(row["second"] or "-")}, by '
-                 f'{row["margin_delta_e"] if row["margin_delta_e"] is not None else "-"}</small></td>']  # fmt: skip
+                 f'{row["margin_delta_e"] if row["margin_delta_e"] is not None else "-"}'
+                 f'{" (within the uncertainty)" if row.get("margin_within_uncertainty") else ""}'
+                 "</small></td>"]  # fmt: skip
         for ill in illuminants:
             bare = row["bare"][ill]
             cells.append(f'<td class="cell" data-value="{tone["ita_deg"]}"><img src="{folder}/{e(bare["tile"])}" '
@@ -154,7 +167,7 @@ def _html(document: dict, folders: list[str]) -> str:
                 cells.append(f'<td class="cell{best}" data-value="{v["match_delta_e"]}"><img src="{folder}/'
                              f'{e(v["tile"])}" alt="{e(cell["shade"])} on {e(tone["name"])} under {e(ill)}">'
                              f'<span class="swatch" style="background:{v["made_up_srgb"]}"></span> '
-                             f'cov {v["coverage_delta_e"]:.1f} · match {v["match_delta_e"]:.1f}{note}'
+                             f'cov {v["coverage_delta_e"]:.1f} · match {v["match_delta_e"]:.1f}{_doubt(v)}{note}'
                              "</td>")  # fmt: skip
         body.append("<tr>" + "".join(cells) + "</tr>")
     breaks = document["breaks"]

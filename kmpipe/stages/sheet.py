@@ -44,7 +44,8 @@ def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabel
     """Row and column labels and header of a sheet of ``frames`` (row-major) in ``n_rows`` x ``n_cols`` cells.
 
     Frames that ``kmpipe render`` wrote (EXR with ``product`` and ``camera_azimuth_deg`` attributes) give
-    "product · shade" per row and per frame (the product alone when the shade is its name; marked with
+    "product · shade" per row and per frame (the product alone when the shade is its name; followed by the rendered
+    colour's 95 % uncertainty, ``±0.21``, where the frame's ``colour_uncertainty`` attribute gives one; marked with
     :data:`FAILED_MARK` when the frame's ``validation`` attribute says it failed), the camera's azimuth in degrees per
     column (from the first row) and "scene · illuminant · today's date" across the top; any other frames give their
     file stems and no header.
@@ -63,6 +64,8 @@ def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabel
 
     def row_label(h: dict) -> str:
         name = h["product"] if h["shade"] in ("", h["product"]) else f"{h['product']} · {h['shade']}"
+        if str(h.get("colour_uncertainty", "")).startswith("±"):  # one material's: short enough for a label
+            name += f" {h['colour_uncertainty']}"
         return FAILED_MARK + name if str(h.get("validation", "")).startswith("fail") else name
 
     rows = [row_label(headers[r * n_cols]) for r in range(n_rows)]

@@ -20,6 +20,7 @@ from kmpipe.formats.thresholds import Thresholds
 from kmpipe.validation.findings import SampleReport
 from kmpipe.validation.material import validate_material
 from kmpipe.validation.report import write_index, write_sample_report
+from kmpipe.validation.uncertainty import DRAWS
 
 #: Bytes at the start of a JSON file in which a material names its format.
 _HEAD_BYTES = 4096
@@ -139,6 +140,14 @@ def index_reports(
     return write_index(documents, Path(out_dir), [(title, Path(page)) for title, page in links])
 
 
+def _contexts(context: dict | None) -> list[dict] | None:
+    """The command line's render context for one material: its defaults filled in from the sample when the other
+    half is given (``--at`` alone: over the lightest backing; ``--over`` alone: the median film)."""
+    if context is None:
+        return None
+    return [{**context, "base": str(Path.cwd()), "field": "--over"}]
+
+
 def validate_materials(
     target: str | Path,
     *,
@@ -148,13 +157,17 @@ def validate_materials(
     config: str | Path | None = None,
     overrides: Mapping[str, float | None] | None = None,
     output: str | Path | None = None,
+    context: dict | None = None,
+    draws: int = DRAWS,
 ) -> Validated:
     """The validate stage: validate MATERIAL.json ``target``, or every material in folder ``target``
     (:func:`find_materials`), and write the reports (``kmpipe validate``).
 
     Thresholds: the defaults, or the ``[thresholds]`` table of TOML file ``config``, with ``overrides`` (threshold
     name -> value; None values are left out) on top. Delta E 2000 under each of ``illuminants`` for the CIE
-    ``observer`` ("2" or "10"); ``manifest`` replaces the one a single material's provenance names.
+    ``observer`` ("2" or "10"); ``manifest`` replaces the one a single material's provenance names. ``context``
+    (``thickness_mm`` and ``over``, either None for its default) is where the rendered colour's doubt is judged, with
+    ``draws`` Monte Carlo draws (:func:`kmpipe.validation.material.validate_material`).
 
     Reports go to ``output`` (default: ``reports/`` beside the material, or inside the folder): into ``SAMPLE/``
     under it for a folder's materials or when ``output`` is not given, else straight into ``output``; a folder's
@@ -193,9 +206,8 @@ def validate_materials(
     entries, broken = [], []
     for path in materials:
         try:
-            report = validate_material(
-                path, manifest=manifest, illuminants=illuminants, observer=observer, thresholds=thresholds
-            )
+            report = validate_material(path, manifest=manifest, illuminants=illuminants, observer=observer,
+                                       thresholds=thresholds, contexts=_contexts(context), draws=draws)  # fmt: skip
         except InputError as err:
             if single:
                 raise

@@ -62,6 +62,15 @@ CHECKS = {
     "structured_residuals": Check("warn", "residuals keep one sign over a long stretch: a bias, not noise"),
     "masstone_not_opaque": Check("fail", "the masstone is too thin to hide its backing, so it is not R_inf"),
     "residual_above_noise": Check("warn", "the fit misses repeated readings by far more than they differ"),
+    "colour_uncertainty": Check(
+        "warn/fail",
+        "the rendered colour is known less well than the uncertainty threshold (95 % radius, Delta E 2000)",
+    ),
+    "uncertainty_nonlinear": Check(
+        "warn",
+        "the Monte Carlo and the linearized radius disagree: the model bends (a nearly opaque or transparent film)",
+    ),
+    "not_separable": Check("warn", "K and S cannot be told apart at some wavelengths: the radius covers K/S only"),
     "inputs_changed": Check("warn", "a measurement file changed since the fit: refit before trusting this report"),
 }
 

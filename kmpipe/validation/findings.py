@@ -11,11 +11,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from kmpipe.formats.material import Material, ResidualFigures
 from kmpipe.formats.thresholds import Thresholds
+
+if TYPE_CHECKING:
+    from kmpipe.validation.uncertainty import UncertaintyReport
 
 FORMAT = "kmpipe-validation/1"
 
@@ -72,6 +76,7 @@ class SampleReport:
     noise_source: str
     findings: tuple[Finding, ...]
     changed_inputs: tuple[str, ...]
+    uncertainty: UncertaintyReport | None = None  # the rendered colour's doubt (spectral materials)
 
     @property
     def verdict(self) -> str:
@@ -118,6 +123,8 @@ def _number(value: float | None):
 
 def report_to_dict(report: SampleReport, *, html: str | None = None) -> dict:
     """The ``validation.json`` document (format in docs/formats.md); ``html``: the report page it goes with."""
+    from kmpipe.validation.uncertainty import uncertainty_to_dict
+
     axis = "wavelengths_nm" if report.spectral else "channels"
     return {
         "format": FORMAT,
@@ -159,5 +166,6 @@ def report_to_dict(report: SampleReport, *, html: str | None = None) -> dict:
             }
             for f in report.findings
         ],
+        "uncertainty": None if report.uncertainty is None else uncertainty_to_dict(report.uncertainty, report.labels),
         "report_html": html,
     }

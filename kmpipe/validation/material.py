@@ -11,13 +11,16 @@ difference (Delta E 2000 under each chosen illuminant), the spread of repeated r
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
 from kmpipe.errors import InputError
 from kmpipe.formats.material import read_material
 from kmpipe.formats.sample import Sample, load_sample
+from kmpipe.formats.scene import SubstrateInfo, resolve_reflectance
 from kmpipe.formats.thresholds import Thresholds
 from kmpipe.physics.colorimetry import delta_E_2000, reflectance_to_Lab
 from kmpipe.physics.flags import Flag
@@ -35,6 +38,13 @@ from kmpipe.validation.checks import (
 )
 from kmpipe.validation.findings import MeasurementCheck, SampleReport
 from kmpipe.validation.noise import noise_map, repeat_spread
+from kmpipe.validation.uncertainty import (
+    DRAWS,
+    RenderContext,
+    check_uncertainty,
+    default_context,
+    uncertainty_findings,
+)
 
 
 def repeat_groups(sample: Sample) -> dict[tuple, list[int]]:
@@ -76,10 +86,18 @@ def validate_material(
     illuminants: tuple[str, ...] = ("D65",),
     observer: str = "2",
     thresholds: Thresholds | None = None,
+    contexts: list[dict] | None = None,
+    draws: int = DRAWS,
 ) -> SampleReport:
     """Validate one MATERIAL.json against its measurements (``manifest``: default, the one its provenance names);
     see the module docstring. Delta E 2000 only for spectral materials, under each of ``illuminants`` with the CIE
     ``observer`` ("2" or "10"). InputError naming the file and field for a material or sample that cannot be read.
+
+    ``contexts``: where the rendered colour's doubt is judged (:mod:`kmpipe.validation.uncertainty`), each a dict
+    of ``thickness_mm``, ``over`` (a backing of the sample, or a reflectance as scenes give one: a number,
+    ``colorchecker:NAME``, ``FILE.csv[:COLUMN]`` relative to ``base``), ``base`` and an optional ``label``; a
+    thickness or ``over`` left None, and no context at all, mean the median measured film over the lightest backing.
+    ``draws``: Monte Carlo draws of that check (0: linearized only).
 
     >>> import kmpipe, pathlib, tempfile
     >>> from kmpipe.stages.fit import fit_manifests
@@ -140,6 +158,10 @@ def validate_material(
     sigma, source = noise_map(sample.readings, groups.values())
     opaque = (material.flags & np.uint8(Flag.OPAQUE)) != 0
 
+    uncertainty = None
+    if spectral:
+        resolved = [resolve_context(c, sample) for c in contexts] if contexts else [default_context(sample)]
+        uncertainty = check_uncertainty(material, sample, resolved, tuple(illuminants), observer, draws)
     findings = [
         *check_inputs(changed),
         *check_thresholds(checks, thresholds),
@@ -148,6 +170,7 @@ def validate_material(
         *check_thickness_series(sample, material, labels, sigma, thresholds.noise_factor),
         *check_masstones(sample, material, labels, sigma, thresholds.noise_factor),
         *check_residuals(checks, labels, thresholds, sigma, opaque),
+        *([] if uncertainty is None else uncertainty_findings(uncertainty, labels, thresholds)),
     ]
     return SampleReport(
         material_path=material_path,
@@ -164,4 +187,29 @@ def validate_material(
         noise_source=source,
         findings=tuple(findings),
         changed_inputs=tuple(changed),
+        uncertainty=uncertainty,
     )
+
+
+def resolve_context(context: dict, sample: Sample) -> RenderContext:
+    """A render context (see :func:`validate_material`) on the sample's grid; InputError naming ``--over``."""
+    fallback = default_context(sample)
+    over = context.get("over")
+    thickness = fallback.thickness_mm if context.get("thickness_mm") is None else float(context["thickness_mm"])
+    if over is None:
+        return RenderContext(f"{thickness * 1000:g} um over {fallback.label.partition(' over ')[2]}", thickness,
+                             fallback.substrate)  # fmt: skip
+    label = context.get("label") or f"{thickness * 1000:g} um over {over}"
+    if isinstance(over, str) and over in sample.backings:
+        return RenderContext(label, thickness, np.minimum(sample.backings[over], 1.0))
+    where = {"field": context.get("field", "--over")}
+    with contextlib.suppress(ValueError):
+        over = float(over)
+    try:
+        SubstrateInfo(reflectance=over)
+    except ValidationError:
+        raise InputError(f"expected a backing of the sample ({', '.join(sample.backings) or 'none'}), a reflectance "
+                         f"in [0, 1], 'colorchecker:NAME' or 'FILE.csv[:COLUMN]', got {context['over']!r}",
+                         **where) from None  # fmt: skip
+    substrate = resolve_reflectance(over, sample.wavelengths, Path(context.get("base", ".")), where)
+    return RenderContext(label, thickness, substrate)

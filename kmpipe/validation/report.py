@@ -13,9 +13,7 @@ and nothing needs closing.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import itertools
 import json
 import math
@@ -27,15 +25,15 @@ from urllib.parse import quote
 
 import numpy as np
 from matplotlib import colormaps
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from kmpipe.formats.atomic_write import write_text_atomically
 from kmpipe.physics.colorimetry import reflectance_to_sRGB
 from kmpipe.physics.flags import Flag
 from kmpipe.validation.findings import SEVERITIES, SampleReport, format_ranges, report_to_dict
+from kmpipe.validation.html_parts import png_img, table
+from kmpipe.validation.uncertainty_page import uncertainty_section
 
-DPI = 100
 SPECTRA_SIZE = (9.0, 7.0)  # inches
 KS_SIZE = (9.0, 5.0)
 SWATCH_COLUMNS = 5
@@ -71,11 +69,6 @@ def _badge(verdict: str) -> str:
     return f'<span class="badge {verdict}">{verdict}</span>'
 
 
-def _table(header: list[str], rows: list[str]) -> str:
-    head = "".join(f"<th>{h}</th>" for h in header)
-    return f"<table>\n<tr>{head}</tr>\n" + "\n".join(rows) + "\n</table>"
-
-
 # --- figures ---------------------------------------------------------------------------------------------
 
 
@@ -83,19 +76,6 @@ def swatch_figsize(count: int) -> tuple[float, float]:
     """Size (inches) of the swatch figure for ``count`` measurements: rows of :data:`SWATCH_COLUMNS`."""
     rows = max(1, math.ceil(count / SWATCH_COLUMNS))
     return 9.0, 0.6 + 2.2 * rows
-
-
-def _png_img(fig: Figure, element_id: str, alt: str) -> str:
-    """The figure as an ``<img>`` with the PNG embedded (no Software tag, so the bytes are reproducible)."""
-    FigureCanvasAgg(fig)
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=DPI, metadata={"Software": None})
-    width, height = (round(v * DPI) for v in fig.get_size_inches())
-    data = base64.b64encode(buffer.getvalue()).decode("ascii")
-    return (
-        f'<img id="{element_id}" alt="{html.escape(alt)}" width="{width}" height="{height}" '
-        f'src="data:image/png;base64,{data}">'
-    )
 
 
 def _x_axis(report: SampleReport) -> np.ndarray:
@@ -291,7 +271,7 @@ def _findings_table(report: SampleReport) -> str:
         f"<td>{html.escape(_where(report, f.where)) or '—'}</td></tr>"
         for f in ordered
     ]
-    return _table(["severity", "code", "message", "measurement", "where"], rows)
+    return table(["severity", "code", "message", "measurement", "where"], rows)
 
 
 def _measurement_table(report: SampleReport) -> str:
@@ -331,7 +311,7 @@ def _measurement_table(report: SampleReport) -> str:
         spread = "—" if c.repeat_spread is None else f"{c.repeat_spread:.4f}"
         cells.append(f'<td class="num">{c.repeat_count}</td><td class="num">{spread}</td>')
         rows.append(f'<tr class="{row_level}">' + "".join(cells) + "</tr>")
-    return _table(header, rows)
+    return table(header, rows)
 
 
 # --- the pages -------------------------------------------------------------------------------------------
@@ -351,23 +331,24 @@ def render_sample_html(report: SampleReport) -> str:
         "a row's left edge shows the worst finding about it.</p>",
         _measurement_table(report),
         "<h2>Measured vs predicted</h2>",
-        _png_img(
+        png_img(
             draw_spectra(report),
             "plot-spectra",
             f"{name}: measured and predicted reflectance of every measurement, with residuals",
         ),
         "<h2>K and S</h2>",
-        _png_img(draw_ks(report), "plot-ks", f"{name}: K and S per mm with standard-error bands"),
+        png_img(draw_ks(report), "plot-ks", f"{name}: K and S per mm with standard-error bands"),
     ]
     if report.illuminants:
         parts += [
             "<h2>Colour swatches</h2>",
-            _png_img(
+            png_img(
                 draw_swatches(report),
                 "plot-swatches",
                 f"{name}: measured and predicted colour of every measurement under {report.illuminants[0]}",
             ),
         ]
+        parts.append(uncertainty_section(report))
     elif report.spectral:
         parts.append('<p class="note">No illuminant was chosen, so no colour differences or swatches.</p>')
     else:
@@ -422,7 +403,7 @@ def write_index(entries: list[tuple[dict, Path]], out_dir: Path, links: Sequence
         f"{html.escape(title)}</a></p>\n"
         for title, page in links
     )
-    body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n{pages}" + _table(
+    body = f"<h1>kmpipe validation: {len(entries)} samples</h1>\n<p>{counts}</p>\n{pages}" + table(
         ["sample", "product", "verdict", "worst ΔE00", "reasons", "report"], rows
     )
     write_text_atomically(out_dir / "summary.json", json.dumps(summary, indent=1, allow_nan=False) + "\n")
