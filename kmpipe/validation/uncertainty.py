@@ -79,6 +79,7 @@ class UncertaintyReport:
     suggestions: tuple[Suggestion, ...]
     draws: int
     blind: np.ndarray  # (n,) wavelengths where K and S cannot be told apart
+    unsettled: int = 0  # Monte Carlo draws whose refit had not settled (a nearly flat valley of K and S)
 
     @property
     def worst(self) -> ColourCheck:
@@ -149,7 +150,8 @@ def check_uncertainty(
 
     suggestions = rank(budget, doubts, sample.thickness_mm, radius_of, material.saunderson)
     blind = budget.inverse()[1]
-    return UncertaintyReport(budget, tuple(checks), tuple(suggestions[:3]), draws, blind[0::2] | blind[1::2])
+    return UncertaintyReport(budget, tuple(checks), tuple(suggestions[:3]), draws, blind[0::2] | blind[1::2],
+                             0 if fits is None else fits.unsettled)  # fmt: skip
 
 
 def uncertainty_findings(report: UncertaintyReport, labels: list, thresholds: Thresholds) -> list[Finding]:
@@ -166,7 +168,9 @@ def uncertainty_findings(report: UncertaintyReport, labels: list, thresholds: Th
             out.append(finding(
                 "uncertainty_nonlinear",
                 f"{check.context.label} under {check.doubt.illuminant}: Monte Carlo +-{check.sampled:.2f} against "
-                f"linearized +-{check.doubt.radius:.2f} Delta E 2000; the larger is used",
+                f"linearized +-{check.doubt.radius:.2f} Delta E 2000; the larger is used"
+                + (f" ({report.unsettled} of {report.draws} refits had not settled: K and S are barely told apart)"
+                   if report.unsettled else ""),
             ))  # fmt: skip
     if report.blind.any():
         out.append(finding(
@@ -221,6 +225,7 @@ def uncertainty_to_dict(report: UncertaintyReport, labels: list) -> dict:
         "radius_delta_e_2000_95": round(worst.radius, 4),
         "headline": headline(worst),
         "draws": report.draws,
+        "monte_carlo_unsettled": report.unsettled,
         "colours": [
             {
                 "context": c.context.label,
