@@ -191,6 +191,8 @@ def test_fit_on_broken_manifests_and_spectra(target, breakage):
 
 @FUZZ_SLOW
 @given(breakage=breakages)
+@example(breakage=Breakage(kind="token", position=0.5, token="1e308"))  # (draws: a budget whose covariance overflows,
+@example(breakage=Breakage(kind="token", position=0.5, token="-1e308"))  # a noise block that is not semidefinite)
 def test_validate_on_broken_materials(material, breakage):
     def setup(work: Path) -> None:
         copy_sample(work)

@@ -20,6 +20,12 @@ import numpy as np
 from kmpipe.physics.fit_covariance import Budget
 
 KINDS = ("noise", "backing", "thickness", "white")
+#: The largest standard uncertainty of K or S (1/mm) a budget may give: far beyond any measured doubt (a real one is
+#: below 1e3), and small enough that the CIELAB covariance propagated from it stays finite in double precision.
+LARGEST_UNCERTAINTY = 1e100
+#: The largest magnitude of any number of a budget. A masstone's dR/dK grows without bound as K -> 0 (a wavelength the
+#: fit flags), so H reaches about 1e297 there; a hand-edited 1e308 would overflow the products the budget is used in.
+LARGEST_ENTRY = 1e300
 ORDER = "theta = (K_1, S_1, ..., K_n, S_n) in 1/mm; Cov(theta) = H^-1 (sum of the sources' information) H^-1"
 
 
@@ -73,6 +79,8 @@ def budget_from_dict(doc, K: np.ndarray, S: np.ndarray, fail) -> Budget:
             fail(field, f"expected numbers of shape {shape}")
         if out.shape != shape or not np.all(np.isfinite(out)):
             fail(field, f"expected finite numbers of shape {shape}, got shape {out.shape}")
+        if float(np.max(np.abs(out), initial=0.0)) > LARGEST_ENTRY:
+            fail(field, f"expected numbers within +-{LARGEST_ENTRY:g} (a budget as kmpipe fit writes it)")
         return out
 
     bands = doc.get("H_bands")
@@ -84,7 +92,7 @@ def budget_from_dict(doc, K: np.ndarray, S: np.ndarray, fail) -> Budget:
         index = np.arange(2 * n - d)
         H[index, index + d] = values
         H[index + d, index] = values
-    blocks, columns, vectors, kinds = {}, {}, {}, {}
+    blocks, columns, vectors, kinds, fields = {}, {}, {}, {}, {}
     sources = doc.get("sources")
     if not isinstance(sources, list):
         fail("uncertainty.sources", "expected a list")
@@ -93,9 +101,12 @@ def budget_from_dict(doc, K: np.ndarray, S: np.ndarray, fail) -> Budget:
         if not isinstance(entry, dict) or not isinstance(entry.get("name"), str) or entry.get("kind") not in KINDS:
             fail(where, f"expected an object with a name and a kind ({', '.join(KINDS)})")
         name = entry["name"]
-        kinds[name] = entry["kind"]
+        kinds[name], fields[name] = entry["kind"], where
         if "blocks" in entry:
             kk, ks, ss = array(entry["blocks"], where + ".blocks", (n, 3)).T
+            with np.errstate(all="ignore"):  # each block is a sum of outer products: positive semidefinite
+                if np.any(kk < 0.0) or np.any(ss < 0.0) or np.any(ks * ks > kk * ss * (1.0 + 1e-9) + 1e-300):
+                    fail(where + ".blocks", "expected [kk, ks, ss] of a positive semidefinite block at each wavelength")
             blocks[name] = np.stack([np.stack([kk, ks], -1), np.stack([ks, ss], -1)], axis=1)
         elif "columns" in entry:
             columns[name] = array(entry["columns"], where + ".columns", (n, 2))
@@ -105,4 +116,17 @@ def budget_from_dict(doc, K: np.ndarray, S: np.ndarray, fail) -> Budget:
             fail(where, "expected blocks, columns or a vector")
     if not math.isfinite(float(np.sum(np.abs(H)))):
         fail("uncertainty.H_bands", "not finite")
-    return Budget(K, S, H, blocks, columns, vectors, kinds)
+    budget = Budget(K, S, H, blocks, columns, vectors, kinds)
+    with np.errstate(all="ignore"):  # a hand-edited budget may overflow: said below, not warned about
+        if not np.all(np.isfinite(budget.inverse()[0])):
+            fail("uncertainty.H_bands", "H cannot be inverted in double precision")
+        for name in budget.sources:
+            covariance = budget.covariance([name])
+            sd = np.sqrt(np.abs(np.diag(covariance)))
+            if not (np.all(np.isfinite(covariance)) and float(np.max(sd, initial=0.0)) <= LARGEST_UNCERTAINTY):
+                fail(
+                    fields[name],
+                    f"the standard uncertainty of K or S it gives is not finite or above "
+                    f"{LARGEST_UNCERTAINTY:g} per mm (a budget as kmpipe fit writes it is expected)",
+                )
+    return budget
