@@ -1,7 +1,7 @@
 """What a frame shows where no surface is: a flat colour, a vertical gradient, or the environment behind the camera's
 rays.
 
-The passes clear their colour target to the flat colour (or black) with alpha 0 and every surface writes alpha 1;
+The passes leave alpha 0 where no surface is and 1 where one covers the pixel;
 :func:`fill_background` then adds what is behind, weighted by 1 - alpha, to the pixels not wholly covered (alpha 0:
 nothing covers them; between 0 and 1: a multisampled silhouette, :mod:`renderer.multisample`). A gradient's row y of
 h (0 at the top) takes ``top + (bottom - top) s(t)``, t = (y + 1/2) / h, s(t) = 3 t^2 - 2 t^3; a visible environment
@@ -14,14 +14,6 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.scene import GradientBackground, Scene
-
-
-def clear_colour(scene: Scene) -> tuple[float, float, float]:
-    """The colour a pass clears to: the flat background, else black (the fill paints the rest)."""
-    shown = scene.environment is not None and scene.environment.visible
-    if shown or isinstance(scene.background, GradientBackground):
-        return (0.0, 0.0, 0.0)
-    return tuple(float(c) for c in scene.background)
 
 
 def camera_rays(scene: Scene) -> np.ndarray:
@@ -44,21 +36,25 @@ def fill_background(rgba: np.ndarray, scene: Scene) -> np.ndarray:
     """The frame's linear RGB (h, w, 3) from its RGBA read-back, the pixels of alpha < 1 filled as the module says."""
     rgb = rgba[..., :3]
     environment = scene.environment
+    shown = environment is not None and environment.visible
     gradient = isinstance(scene.background, GradientBackground)
-    if not (gradient or (environment is not None and environment.visible)):
+    flat = np.zeros(3) if shown or gradient else np.asarray(scene.background, dtype=float)
+    if not (shown or gradient or flat.any()):
         return rgb
     cover = rgba[..., 3]
     empty = cover < 1.0  # (a multisampled silhouette: partly covered)
     if not empty.any():
         return rgb
-    if environment is not None and environment.visible:
+    if shown:
         behind = environment.lookup(camera_rays(scene))
-    else:
+    elif gradient:
         height = rgba.shape[0]
         t = (np.arange(height) + 0.5) / height
         s = (t * t * (3.0 - 2.0 * t))[:, None, None]
         top, bottom = (np.asarray(c, dtype=float) for c in (scene.background.top, scene.background.bottom))
         behind = np.broadcast_to(top + (bottom - top) * s, rgb.shape)
+    else:
+        behind = np.broadcast_to(flat, rgb.shape)
     out = rgb.copy()
     out[empty] = rgb[empty] + (1.0 - cover[empty, None]) * behind[empty]
     return out

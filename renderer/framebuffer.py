@@ -1,5 +1,5 @@
-"""A float framebuffer object: one or more RGBA32F colour textures and a 24-bit depth attachment, single-sampled or
-multisampled (:mod:`renderer.multisample` resolves the latter), and a pool of idle ones that passes reuse: on llvmpipe a
+"""A float framebuffer object: one or more RGBA32F colour textures and a 24-bit depth and 8-bit stencil attachment,
+single-sampled or multisampled, and a pool of idle ones that passes reuse: on llvmpipe a
 new 1024 x 1024 framebuffer of three targets, multisampled 4 x, costs about 0.15 s (the first touch of its 200 MB),
 every frame again."""
 
@@ -16,15 +16,15 @@ from renderer.context import GL
 class Framebuffer:
     """An offscreen render target of ``width`` x ``height`` pixels holding linear float RGBA in ``targets`` colour
     attachments (fragment outputs at locations 0 .. targets - 1), sampled linearly and clamped at the edges; with
-    ``samples`` > 1 the attachments are multisample textures of that many samples per pixel (read them back through
-    :func:`renderer.multisample.resolve`, not :meth:`read_rgba`).
+    ``samples`` > 1 the attachments are multisample textures of that many samples per pixel (a shader reads them
+    with texelFetch; :meth:`read_rgba` cannot).
 
     Use as a context manager (or call :meth:`release`) to free the GL objects. The current context must stay the
     same from creation to release.
     """
 
     def __init__(self, width: int, height: int, targets: int = 1, samples: int = 1) -> None:
-        """Create the colour textures, depth renderbuffer and FBO; sizes in pixels, ``samples`` per pixel."""
+        """Create the colour textures, depth-stencil renderbuffer and FBO; sizes in pixels, ``samples`` per pixel."""
         self.width = width
         self.height = height
         self.samples = samples
@@ -48,14 +48,14 @@ class Framebuffer:
         self.depth = GL.glGenRenderbuffers(1)
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self.depth)
         GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples if samples > 1 else 0,
-                                            GL.GL_DEPTH_COMPONENT24, width, height)  # fmt: skip
+                                            GL.GL_DEPTH24_STENCIL8, width, height)  # fmt: skip
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, 0)
         self.fbo = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
         for index, colour in enumerate(self.colours):
             GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0 + index, kind, colour, 0)
         GL.glDrawBuffers(targets, [GL.GL_COLOR_ATTACHMENT0 + index for index in range(targets)])
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self.depth)
+        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_STENCIL_ATTACHMENT, GL.GL_RENDERBUFFER, self.depth)
         status = GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, 0)
         if status != GL.GL_FRAMEBUFFER_COMPLETE:
@@ -81,7 +81,7 @@ class Framebuffer:
         GL stores rows bottom-up; the rows are flipped so that row 0 is the top of the image.
         """
         if self.samples > 1:
-            raise ValueError("a multisampled framebuffer is read through renderer.multisample.resolve")
+            raise ValueError("a multisampled framebuffer cannot be read back as it is")
         self.bind()
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0 + target)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 4)
@@ -109,7 +109,7 @@ _idle: list[Framebuffer] = []  # least recently given back first
 
 
 def _bytes(framebuffer: Framebuffer) -> int:
-    """Bytes of a framebuffer's attachments: RGBA32F colours and a 24-bit depth (stored in 4 bytes) per sample."""
+    """Bytes of a framebuffer's attachments: RGBA32F colours and a 24-bit depth with 8-bit stencil per sample."""
     return framebuffer.width * framebuffer.height * framebuffer.samples * (16 * len(framebuffer.colours) + 4)
 
 

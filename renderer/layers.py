@@ -17,6 +17,14 @@ attenuated by the films above it. A pixel renders as
 with ``E`` the light's radiance, the value a white Lambert surface facing the light renders to (as in
 a bare Lambert surface); ``km_layers.frag`` gives every term. Lights that cast shadows get a shadow map
 (:mod:`renderer.shadows`) covering the mesh and the props, filtered with 3 x 3 PCF taps.
+
+The pass is deferred: the meshes are first drawn into surface attributes (``shaders/surface_attributes.frag``: per
+sample, what the nearest surface holds at the pixel's centre), multisampled when the scene asks for it; then each
+mesh is shaded once over the frame (``shaders/km_layers.frag``), only at the pixels where some sample shows it (a
+stencil bit per mesh, set by ``shaders/surface_cover.frag``), each group of samples showing one smooth surface shaded
+once. A pixel is shaded as often as it shows distinct surfaces, however many triangles were drawn over it: hidden
+surfaces and the triangles' edges inside a surface cost nothing (llvmpipe shades a whole block of pixels for every
+triangle that touches it, and, multisampling, every fragment before its depth test).
 """
 
 from __future__ import annotations
@@ -26,18 +34,19 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 
-from renderer import context, multisample, visible_depth
-from renderer.background import clear_colour, fill_background
+from renderer import context, multisample
+from renderer.background import fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer, pooled
 from renderer.meshes import GpuMesh
 from renderer.program import Program, shared_program
-from renderer.scene import MAX_LIGHTS, Light, Scene, supersampled
+from renderer.scene import MAX_LIGHTS, Light, OrthographicCamera, Scene, supersampled
 from renderer.shadows import MARGIN, ShadowMap, light_camera, shadow_matrix
 from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed
 from renderer.texture_cache import cache as texture_cache
 from renderer.textures import array_texture, float_texture, map_texels, raw_depth_sampler
 from renderer.uniforms import (
+    ATTRIBUTE_TARGETS,
     COMPOSITE_UNIT,
     LAST_UNIT,
     SHADOW_DEPTH_UNIT,
@@ -45,22 +54,27 @@ from renderer.uniforms import (
     SUBSTRATE_UNIT,
     detail_textures,
     environment_textures,
-    set_detail,
+    light_switches,
+    lobe_switch,
+    set_attributes,
     set_environment,
+    set_fine_detail,
     set_floor,
     set_lights,
+    set_roughness,
     set_specular,
     set_view,
-    set_visible,
 )
 
+#: Most meshes in one pass (the product and its props): one stencil bit each.
+MAX_MESHES = 8
 
-def _layers_program(soft_shadows: bool, layers: int, groups: int, lights: int) -> Program:
-    """The layer program for ``layers`` films of ``groups`` channel groups under ``lights`` lights, with or without
-    soft shadows: each combination its own program, the counts compiled in as constants (llvmpipe runs the code of a
-    branch no pixel takes, and indexes arrays in memory in a loop it cannot unroll)."""
-    defines = {"SOFT_SHADOWS": int(soft_shadows), "LAYER_COUNT": layers, "GROUP_COUNT": groups, "LIGHT_COUNT": lights}
-    return shared_program("km_layers.vert", "km_layers.frag", defines=defines)
+
+def _shading_program(switches: dict[str, int]) -> Program:
+    """The shading program with these counts and switches compiled in (km_layers.frag lists them): each combination
+    its own program, compiled once per process (llvmpipe runs the code of a branch no pixel takes under an empty
+    mask, and indexes arrays in memory in a loop it cannot unroll)."""
+    return shared_program("fullscreen.vert", "km_layers.frag", defines=dict(sorted(switches.items())))
 
 
 def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> np.ndarray:
@@ -192,9 +206,7 @@ def render_layers(scene: Scene) -> np.ndarray:
 
 def _render_layers(scene: Scene) -> np.ndarray:
     with context.lock, SurfacePass(scene) as surface_pass, pooled(*scene.resolution) as target:
-        with multisample.canvas(target, scene.multisamples) as drawn:
-            drawn.clear((*clear_colour(scene), 0.0))
-            surface_pass.draw(drawn, split=False)
+        surface_pass.draw(target, split=False)
         return fill_background(target.read_rgba(), scene)
 
 
@@ -203,8 +215,8 @@ class SurfacePass:
     a target.
 
     A context manager; the resources are freed on exit. Refuses (ValueError) a scene the pass cannot draw: no light
-    or more than :data:`MAX_LIGHTS`, lobes not one per film, a prop's albedo outside [0, 1], a stack beyond the
-    pass's limits.
+    or more than :data:`MAX_LIGHTS`, lobes not one per film, a prop's albedo outside [0, 1], more than
+    :data:`MAX_MESHES` meshes, a sample count multisampling cannot take, a stack beyond the pass's limits.
     """
 
     def __init__(self, scene: Scene) -> None:
@@ -226,16 +238,41 @@ class SurfacePass:
         self.draws = [(scene.mesh, self.model)] + [
             (p.mesh, np.eye(4) if p.model is None else np.asarray(p.model, float)) for p in self.props
         ]
+        if len(self.draws) > MAX_MESHES:
+            raise ValueError(f"at most {MAX_MESHES - 1} props can be drawn with the product, got {len(self.props)}")
         self.camera, self.lights = scene.camera, list(scene.lights)
         self.view_projection = self.camera.projection_matrix(width / height) @ self.camera.view_matrix()
         self.shadow_map_size = scene.shadow_map_size
         self.environment, self.occlusion = scene.environment, scene.occlusion
         self.normal_map, self.substrate_roughness = scene.normal_map, scene.substrate_roughness
         context.make_current(width, height)
+        self.samples = scene.multisamples
+        multisample.check_samples(self.samples)
         self.soft_shadows = any(light.cast_shadows and light.softness > 0.0 for light in self.lights)
-        groups = 1 if self.channel is None else -(-self.channel["substrate"].size // 4)
-        self.program = _layers_program(self.soft_shadows, stack.n_layers, groups, len(self.lights))
-        self.props_program = _layers_program(self.soft_shadows, 0, 1, len(self.lights))  # bare RGB substrates
+        shared = {
+            **light_switches(self.lights),
+            "SAMPLES": self.samples,
+            "ENVIRONMENT": int(self.environment is not None),
+            "ORTHOGRAPHIC": int(isinstance(self.camera, OrthographicCamera)),
+        }
+        channel = self.channel
+        maps = [] if channel is None else channel["maps"]
+        self.product_switches = {
+            **shared,
+            **lobe_switch(self.lobes_bottom_up),
+            "LAYER_COUNT": stack.n_layers,
+            "GROUP_COUNT": 1 if channel is None else -(-channel["substrate"].size // 4),
+            "THICKNESS_MAPS": sum(1 << index for index, values in enumerate(maps) if values is not None),
+            "PRECOMPOSED": int(channel is None),
+            "SUBSTRATE_MAP": int(channel is not None and channel["substrate_map"] is not None),
+            "ROUGHNESS_MAP": int(self.substrate_roughness is not None),
+            "FLOOR": 0,
+        }
+        self.props_switches = [  # bare Lambert substrates in RGB: no films, no lobes
+            {**shared, "LOBES": 0, "LAYER_COUNT": 0, "GROUP_COUNT": 1, "THICKNESS_MAPS": 0, "PRECOMPOSED": 0,
+             "SUBSTRATE_MAP": 0, "ROUGHNESS_MAP": 0, "FLOOR": int(prop.floor_occlusion is not None), "SKIN_SPLIT": 0}
+            for prop in self.props
+        ]  # fmt: skip
         self.composite = 0
         texture_cache.new_frame()  # nothing this pass binds is evicted while it draws
         self.raw_depth_sampler = raw_depth_sampler()
@@ -272,57 +309,99 @@ class SurfacePass:
         self.detail_textures = detail_textures(self.normal_map, self.substrate_roughness)
 
     def draw(self, target: Framebuffer, *, split: bool) -> None:
-        """Draw the mesh and the props into ``target`` (bound, cleared by the caller).
+        """Shade the mesh and the props into ``target`` (single-sampled, cleared here; its alpha: the share of each
+        pixel's samples a surface shows).
 
-        ``split``: the skin pass's three outputs (km_layers.frag), the mesh being skin; else one colour output. A
-        multisampled target on llvmpipe gets a depth pass first (:mod:`renderer.visible_depth`), so that fragments
-        hidden at every sample are not shaded; the frame is the same.
+        ``split``: the skin pass's three outputs (km_layers.frag), the mesh being skin; else one colour output.
         """
-        size = (target.width, target.height, target.samples)
-        with visible_depth.bounds(*size, self.gpu_draws, self.view_projection) as bounds:
-            self._draw_all(target, split, 0 if bounds is None else bounds.colour)
+        width, height = target.width, target.height
+        with pooled(width, height, ATTRIBUTE_TARGETS, self.samples) as attributes:
+            self._draw_attributes(attributes)
+            target.bind()
+            for index in range(len(target.colours)):
+                GL.glClearBufferfv(GL.GL_COLOR, index, np.zeros(4, dtype=np.float32))
+            GL.glClearBufferiv(GL.GL_STENCIL, 0, np.zeros(1, dtype=np.int32))
+            vao = GL.glGenVertexArrays(1)
+            GL.glBindVertexArray(vao)
+            try:
+                self._cover(attributes)
+                self._shade(attributes, split)
+                GL.glFinish()
+            finally:
+                GL.glDisable(GL.GL_STENCIL_TEST)
+                GL.glDisable(GL.GL_BLEND)
+                GL.glStencilMask(0xFF)
+                GL.glColorMask(GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
+                GL.glBindVertexArray(0)
+                GL.glDeleteVertexArrays(1, [vao])
+                _unbind_units()
 
-    def _draw_all(self, target: Framebuffer, split: bool, bounds: int) -> None:
-        """:meth:`draw` with the samples' depth bounds texture ``bounds`` (0: none, every fragment shaded)."""
-        target.bind()
+    def _draw_attributes(self, attributes: Framebuffer) -> None:
+        """Draw every mesh's surface attributes (surface_attributes.frag) into ``attributes``: mesh index -1 where none.
+        Only the index is cleared: the rest of a sample is read only where it names a mesh."""
+        attributes.bind()
+        GL.glClearBufferfv(GL.GL_COLOR, 2, np.asarray((0.0, 0.0, 0.0, -1.0), dtype=np.float32))
+        GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
         try:
-            # The product (or the skin).
-            program = self._use(self.program, split)
-            set_visible(program, bounds, target.samples)
-            if self.channel is not None:
-                _bind_channel_stack(program, self.channel)
-            else:
-                _bind_precomposed(program, self.composite)
-            set_specular(program, self.lobes_bottom_up)
-            GL.glUniform1i(program.location("u_skin"), 1)
-            set_detail(program, self.normal_map, self.detail_textures)
-            set_floor(program, None, None)
-            _draw(program, self.gpu_meshes[0], self.model)
-            # The props: bare Lambert substrates in RGB, with the program of no films.
-            if self.props:
-                program = self._use(self.props_program, split)
-                set_specular(program, [])
-                set_detail(program, None, [0, 0, 0])
-                GL.glUniform1i(program.location("u_skin"), 0)
-                set_visible(program, bounds, target.samples)
-            for prop, gpu_mesh, (_, prop_model) in zip(self.props, self.gpu_meshes[1:], self.draws[1:], strict=True):
-                _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
-                set_floor(program, prop.floor_occlusion, prop.floor_frame)
-                _draw(program, gpu_mesh, prop_model)
-            GL.glFinish()
+            for index, (gpu_mesh, model) in enumerate(self.gpu_draws):
+                normal_map = self.normal_map if index == 0 else None
+                program = shared_program("km_layers.vert", "surface_attributes.frag",
+                                         defines={"NORMAL_MAP": int(normal_map is not None)})  # fmt: skip
+                program.use()
+                program.set_mat4("u_view_projection", self.view_projection)
+                program.set_mat4("u_view", self.camera.view_matrix())
+                GL.glUniform1f(program.location("u_object"), float(index))
+                set_fine_detail(program, normal_map, self.detail_textures)
+                _draw(program, gpu_mesh, model)
         finally:
-            _unbind_units()
+            GL.glDisable(GL.GL_DEPTH_TEST)
 
-    def _use(self, program: Program, split: bool) -> Program:
-        """Make ``program`` current with everything its draws share: view, lights, shadow maps, environment and the
-        texture units of the tables and maps."""
+    def _cover(self, attributes: Framebuffer) -> None:
+        """Set stencil bit i of every pixel where some sample shows mesh i (surface_cover.frag)."""
+        program = shared_program("fullscreen.vert", "surface_cover.frag", defines={"SAMPLES": self.samples})
         program.use()
-        program.set_mat4("u_view_projection", self.view_projection)
-        program.set_mat4("u_view", self.camera.view_matrix())
-        GL.glUniform1i(program.location("u_split"), int(split))
-        set_lights(program, self.lights, self.casts, self.shadow_matrices, self.shadow_ranges, self.soft_shadows)
+        set_attributes(program, attributes.colours, self.samples, read=(2,))
+        GL.glColorMask(GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE, GL.GL_FALSE)
+        GL.glEnable(GL.GL_STENCIL_TEST)
+        GL.glStencilFunc(GL.GL_ALWAYS, 0xFF, 0xFF)
+        GL.glStencilOp(GL.GL_KEEP, GL.GL_KEEP, GL.GL_REPLACE)
+        for index in range(len(self.gpu_draws)):
+            GL.glStencilMask(1 << index)
+            GL.glUniform1f(program.location("u_object"), float(index))
+            GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+        GL.glStencilMask(0)
+        GL.glColorMask(GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
+
+    def _shade(self, attributes: Framebuffer, split: bool) -> None:
+        """Shade each mesh over the pixels its stencil bit marks, adding (blending) into the bound target."""
+        GL.glEnable(GL.GL_BLEND)
+        GL.glBlendFunc(GL.GL_ONE, GL.GL_ONE)
+        # The product (or the skin).
+        program = self._use(_shading_program({**self.product_switches, "SKIN_SPLIT": int(split)}), attributes)
+        if self.channel is not None:
+            _bind_channel_stack(program, self.channel)
+        else:
+            _bind_precomposed(self.composite)
+        set_specular(program, self.lobes_bottom_up)
+        set_roughness(program, self.detail_textures)
+        _shade_mesh(program, 0)
+        # The props: bare Lambert substrates in RGB.
+        for index, (prop, switches) in enumerate(zip(self.props, self.props_switches, strict=True), start=1):
+            program = self._use(_shading_program(switches), attributes)
+            set_specular(program, [])
+            _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
+            set_floor(program, prop.floor_occlusion, prop.floor_frame)
+            _shade_mesh(program, index)
+
+    def _use(self, program: Program, attributes: Framebuffer) -> Program:
+        """Make ``program`` current with everything its meshes share: the attributes, view, lights, shadow maps,
+        environment and the texture units of the tables and maps."""
+        program.use()
+        set_attributes(program, attributes.colours, self.samples)
+        GL.glUniform2f(program.location("u_footprint"), *_footprint(self.camera, attributes.height))
+        set_lights(program, self.lights, self.shadow_matrices, self.shadow_ranges)
         GL.glUniform1fv(
             program.location("u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
         )
@@ -372,14 +451,28 @@ def _unbind_units() -> None:
     GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
+def _shade_mesh(program: Program, index: int) -> None:
+    """Shade mesh ``index`` over the whole frame, where its stencil bit is set."""
+    GL.glStencilFunc(GL.GL_EQUAL, 1 << index, 1 << index)
+    GL.glUniform1f(program.location("u_object"), float(index))
+    GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+
+
+def _footprint(camera, height: int) -> tuple[float, float]:
+    """A pixel's size (mm) at view depth d as (x, y) with size = x + y d: the orthographic camera's constant, or the
+    perspective camera's angle a pixel subtends."""
+    if isinstance(camera, OrthographicCamera):
+        return 2.0 * camera.half_height / height, 0.0
+    return 0.0, 2.0 * float(np.tan(np.radians(camera.fov_y_deg) / 2.0)) / height
+
+
 def _draw(program: Program, gpu_mesh: GpuMesh, model: np.ndarray) -> None:
     program.set_mat4("u_model", model)
     program.set_mat3("u_normal_matrix", np.linalg.inv(model[:3, :3]).T)
     gpu_mesh.draw()
 
 
-def _bind_precomposed(program: Program, texture: int) -> None:
-    GL.glUniform1i(program.location("u_precomposed"), 1)
+def _bind_precomposed(texture: int) -> None:
     GL.glActiveTexture(GL.GL_TEXTURE0 + COMPOSITE_UNIT)
     GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
 
@@ -406,22 +499,17 @@ def _bind_channel_stack(program: Program, channel: dict) -> None:
     to_rgb_rows = np.zeros((MAX_CHANNELS, 3))
     to_rgb_rows[:channels] = channel["to_rgb"]
     sample_count = np.ones(MAX_LAYERS, dtype=np.int32)
-    use_map = np.zeros(MAX_LAYERS, dtype=np.int32)
     axes = np.zeros((MAX_LAYERS, 2))
     for index, (x, _, _) in enumerate(arrays):
         sample_count[index] = x.size
-        use_map[index] = maps[index] is not None
         axes[index] = _even_axis(x)
-    GL.glUniform1i(program.location("u_precomposed"), 0)
     GL.glUniform1iv(program.location("u_sample_count"), MAX_LAYERS, sample_count)
-    GL.glUniform1iv(program.location("u_use_map"), MAX_LAYERS, use_map)
     GL.glUniform1fv(program.location("u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
     GL.glUniform2fv(program.location("u_axis"), MAX_LAYERS, axes.astype(np.float32).ravel())
     GL.glUniform4fv(program.location("u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
     basis_groups = np.zeros((3, 4 * (MAX_CHANNELS // 4)))
     if channel["substrate_map"] is not None:
         basis_groups[:, :channels] = channel["substrate_map"][1]
-    GL.glUniform1i(program.location("u_use_substrate_map"), int(channel["substrate_map"] is not None))
     GL.glUniform4fv(
         program.location("u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
     )

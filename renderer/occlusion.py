@@ -69,6 +69,9 @@ def vertex_occlusion(
         try:
             with ShadowMap(size) as depth_map:
                 for w in directions:
+                    weight = np.maximum(normals @ w, 0.0)
+                    if not weight.any():  # below every vertex's horizon (half the sphere, for a floor): no share
+                        continue
                     light = DirectionalLight(tuple(-w), (1.0, 1.0, 1.0))
                     view_projection = light_view_projection(light, centre, radius)
                     depth_map.render([(g, np.eye(4)) for g in gpu], view_projection)
@@ -77,7 +80,6 @@ def vertex_occlusion(
                     column = np.clip((q[:, 0] * size).astype(int), 0, size - 1)
                     row = np.clip(size - 1 - (q[:, 1] * size).astype(int), 0, size - 1)
                     visible = q[:, 2] <= depth[row, column]
-                    weight = np.maximum(normals @ w, 0.0)
                     seen += visible * weight
                     weight_sum += weight
         finally:

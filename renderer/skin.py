@@ -29,8 +29,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from renderer import context, multisample
-from renderer.background import clear_colour, fill_background
+from renderer import context
+from renderer.background import fill_background
 from renderer.context import GL
 from renderer.framebuffer import Framebuffer, pooled
 from renderer.layers import SurfacePass
@@ -157,12 +157,7 @@ def render_skin(scene: Scene) -> np.ndarray:
 def _render_skin(scene: Scene) -> np.ndarray:
     width, height = scene.resolution
     with context.lock, SurfacePass(scene) as surface_pass, pooled(width, height, targets=3) as target:
-        with multisample.canvas(target, scene.multisamples) as drawn:
-            drawn.bind()
-            for index, value in enumerate(((*clear_colour(scene), 0.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))):
-                GL.glClearBufferfv(GL.GL_COLOR, index, np.asarray(value, dtype=np.float32))
-            GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
-            surface_pass.draw(drawn, split=True)
+        surface_pass.draw(target, split=True)
         surface = fill_background(target.read_rgba(0), scene)
         if scene.scattering is None:
             return surface + target.read_rgba(1)[..., :3]

@@ -1,10 +1,11 @@
-"""The layer program's uniforms and texture units (``shaders/km_layers.frag``): lights and their shadows, the view, the
-lobes, the environment light and the mesh's fine detail (normal map, film thickness, substrate roughness).
+"""The layer pass's uniforms and texture units (``shaders/km_layers.frag`` and ``shaders/surface_attributes.frag``):
+lights and their shadows, the view, the lobes, the environment light, the mesh's fine detail (normal map, film
+thickness, substrate roughness) and the surface attributes the shading reads.
 
 Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12, the substrate map 13, the
 environment's irradiance 14, specular levels 15 and lobe table 16, the shadow maps' raw depths 17-20 (read through a
 sampler object that does not compare), the normal map 21, the films' total thickness 22, the substrate's roughness 23,
-a floor's occlusion grid 24, the samples' depth bounds of renderer.visible_depth 25.
+a floor's occlusion grid 24, the surface attributes 25-28.
 Every sampler has a unit of its own (GL forbids samplers of different types on one unit, even unused ones).
 """
 
@@ -29,8 +30,10 @@ ENV_UNIT = SUBSTRATE_UNIT + 1
 SHADOW_DEPTH_UNIT = ENV_UNIT + 3
 DETAIL_UNIT = SHADOW_DEPTH_UNIT + MAX_LIGHTS
 FLOOR_UNIT = DETAIL_UNIT + 3
-VISIBLE_UNIT = FLOOR_UNIT + 1
-LAST_UNIT = VISIBLE_UNIT
+ATTRIBUTE_UNIT = FLOOR_UNIT + 1
+#: Targets of the surface attributes (surface_attributes.frag).
+ATTRIBUTE_TARGETS = 4
+LAST_UNIT = ATTRIBUTE_UNIT + ATTRIBUTE_TARGETS - 1
 
 
 def environment_textures(environment) -> list[int]:
@@ -49,8 +52,7 @@ def environment_textures(environment) -> list[int]:
 
 
 def set_environment(program: Program, environment, textures: Sequence[int]) -> None:
-    """The environment's uniforms and textures (units ENV_UNIT ..), or u_env_on = 0."""
-    GL.glUniform1i(program.location("u_env_on"), int(environment is not None))
+    """The environment's uniforms and textures (units ENV_UNIT ..), for a program with ENVIRONMENT (else nothing)."""
     for offset, name in enumerate(("u_env_irradiance", "u_env_specular", "u_env_lobe")):
         GL.glUniform1i(program.location(name), ENV_UNIT + offset)
     if environment is None:
@@ -85,30 +87,29 @@ def detail_textures(normal_map: NormalMap | None, roughness: np.ndarray | None) 
     return textures
 
 
-def set_detail(program: Program, normal_map: NormalMap | None, textures: Sequence[int]) -> None:
-    """Uniforms and textures of the mesh's fine detail and the substrate's roughness map (units DETAIL_UNIT ..)."""
-    GL.glUniform1i(program.location("u_use_normal_map"), int(normal_map is not None))
-    GL.glUniform1i(program.location("u_use_roughness_map"), int(textures[2] != 0))
+def set_fine_detail(program: Program, normal_map: NormalMap | None, textures: Sequence[int]) -> None:
+    """The normal map and films' total thickness (units DETAIL_UNIT, DETAIL_UNIT + 1) of the attribute program with
+    NORMAL_MAP, or none."""
     GL.glUniform1f(program.location("u_fill_mm"), FILL_MM if normal_map is None else normal_map.fill_mm)
-    GL.glUniform1f(program.location("u_lobe_cover_mm"), LOBE_COVER_MM)
-    for offset, (name, texture) in enumerate(zip(("u_normal_map", "u_film_total", "u_roughness_map"), textures,
-                                                 strict=True)):  # fmt: skip
+    for offset, name in enumerate(("u_normal_map", "u_film_total")):
         GL.glUniform1i(program.location(name), DETAIL_UNIT + offset)
         GL.glActiveTexture(GL.GL_TEXTURE0 + DETAIL_UNIT + offset)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, textures[offset] if normal_map is not None else 0)
     GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
-def set_lights(
-    program: Program,
-    lights: Sequence[Light],
-    casts: np.ndarray,
-    shadow_matrices: np.ndarray,
-    ranges: np.ndarray,
-    soft_shadows: bool,
-) -> None:
-    """The lights' uniforms; the areas' sizes and the shadow frusta's ranges only in the soft-shadow program."""
-    is_point = np.zeros(MAX_LIGHTS, dtype=np.int32)
+def set_roughness(program: Program, textures: Sequence[int]) -> None:
+    """The shading program's substrate roughness map (unit DETAIL_UNIT + 2, read with ROUGHNESS_MAP; none where
+    ``textures[2]`` is 0) and the films' lobe cover."""
+    GL.glUniform1f(program.location("u_lobe_cover_mm"), LOBE_COVER_MM)
+    GL.glUniform1i(program.location("u_roughness_map"), DETAIL_UNIT + 2)
+    GL.glActiveTexture(GL.GL_TEXTURE0 + DETAIL_UNIT + 2)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, textures[2])
+    GL.glActiveTexture(GL.GL_TEXTURE0)
+
+
+def set_lights(program: Program, lights: Sequence[Light], shadow_matrices: np.ndarray, ranges: np.ndarray) -> None:
+    """The lights' uniforms (their kinds, shadows and softness are compiled in: :func:`light_switches`)."""
     vectors = np.zeros((MAX_LIGHTS, 3))
     radiance = np.zeros((MAX_LIGHTS, 3))
     reference = np.ones(MAX_LIGHTS)
@@ -117,51 +118,60 @@ def set_lights(
         radiance[index] = light.radiance
         softness[index] = light.softness
         if isinstance(light, PointLight):
-            is_point[index], vectors[index], reference[index] = 1, light.position, light.reference_distance_mm
+            vectors[index], reference[index] = light.position, light.reference_distance_mm
         else:
             vectors[index] = light.to_light()
-    GL.glUniform1iv(program.location("u_light_is_point"), MAX_LIGHTS, is_point)
     GL.glUniform3fv(program.location("u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
     GL.glUniform3fv(program.location("u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
     GL.glUniform1fv(program.location("u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
-    GL.glUniform1iv(program.location("u_light_shadow"), MAX_LIGHTS, casts)
-    if soft_shadows:
-        GL.glUniform1fv(program.location("u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
-        GL.glUniform2fv(program.location("u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
+    GL.glUniform1fv(program.location("u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
+    GL.glUniform2fv(program.location("u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
     GL.glUniformMatrix4fv(
         program.location("u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
     )
 
 
+def light_switches(lights: Sequence[Light]) -> dict[str, int]:
+    """The shading program's LIGHT_COUNT and bit masks of the lights that are points (POINT_LIGHTS), that look their
+    shadow map up (SHADOW_LIGHTS) and whose shadows are soft (SOFT_LIGHTS: an area light casting shadows)."""
+    masks = {"POINT_LIGHTS": 0, "SHADOW_LIGHTS": 0, "SOFT_LIGHTS": 0}
+    for index, light in enumerate(lights):
+        masks["POINT_LIGHTS"] |= int(isinstance(light, PointLight)) << index
+        masks["SHADOW_LIGHTS"] |= int(light.cast_shadows) << index
+        masks["SOFT_LIGHTS"] |= int(light.cast_shadows and light.softness > 0.0) << index
+    return {"LIGHT_COUNT": len(lights), **masks}
+
+
 def set_view(program: Program, camera: Camera) -> None:
-    """The view direction: constant (towards the camera) for an orthographic camera, else from the eye position."""
-    orthographic = isinstance(camera, OrthographicCamera)
-    GL.glUniform1i(program.location("u_orthographic"), int(orthographic))
-    if orthographic:
+    """The view direction: constant (towards the camera) for an orthographic camera (ORTHOGRAPHIC), else from the eye
+    position."""
+    if isinstance(camera, OrthographicCamera):
         program.set_vec3("u_view_vector", np.linalg.inv(camera.view_matrix())[:3, 2])
     else:
         program.set_vec3("u_view_vector", camera.eye)
 
 
 def set_specular(program: Program, lobes: Sequence[Specular | None]) -> None:
-    """Lobes of the films bottom-up (slots 0 .. MAX_LAYERS - 1) and of the substrate (slot MAX_LAYERS)."""
+    """Lobes of the films bottom-up (slots 0 .. MAX_LAYERS - 1) and of the substrate (slot MAX_LAYERS); which are on is
+    compiled in (:func:`lobe_switch`)."""
     slots = MAX_LAYERS + 1
-    on = np.zeros(slots, dtype=np.int32)
     roughness = np.ones(slots)
     f0 = np.zeros(slots)
     for index, lobe in enumerate(lobes):
         if lobe is not None:
-            on[index], roughness[index], f0[index] = 1, lobe.roughness, lobe.f0
-    GL.glUniform1i(program.location("u_any_specular"), int(on.any()))
-    GL.glUniform1iv(program.location("u_specular_on"), slots, on)
+            roughness[index], f0[index] = lobe.roughness, lobe.f0
     GL.glUniform1fv(program.location("u_roughness"), slots, roughness.astype(np.float32))
     GL.glUniform1fv(program.location("u_f0"), slots, f0.astype(np.float32))
 
 
+def lobe_switch(lobes: Sequence[Specular | None]) -> dict[str, int]:
+    """The shading program's LOBES: bit k set where slot k (:func:`set_specular`) has a lobe."""
+    return {"LOBES": sum(1 << index for index, lobe in enumerate(lobes) if lobe is not None)}
+
+
 def set_floor(program: Program, floor: FloorOcclusion | None, frame: np.ndarray | None) -> None:
     """A floor's baked occlusion grid (unit FLOOR_UNIT) and its place (``frame``: world -> the grid's frame, identity
-    if None), or u_floor_on = 0."""
-    GL.glUniform1i(program.location("u_floor_on"), int(floor is not None))
+    if None), for a program with FLOOR; or none."""
     GL.glUniform1i(program.location("u_floor"), FLOOR_UNIT)
     texture = 0
     if floor is not None:
@@ -176,12 +186,13 @@ def set_floor(program: Program, floor: FloorOcclusion | None, frame: np.ndarray 
     GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
-def set_visible(program: Program, bounds: int, samples: int) -> None:
-    """The samples' depth bounds of :func:`renderer.visible_depth.bounds` (unit VISIBLE_UNIT), or none (0): then
-    every fragment is shaded."""
-    GL.glUniform1i(program.location("u_visible_on"), int(bounds != 0))
-    GL.glUniform1i(program.location("u_visible_depth"), VISIBLE_UNIT)
-    GL.glUniform1i(program.location("u_visible_samples"), samples)
-    GL.glActiveTexture(GL.GL_TEXTURE0 + VISIBLE_UNIT)
-    GL.glBindTexture(GL.GL_TEXTURE_2D_MULTISAMPLE, bounds)
+def set_attributes(program: Program, textures: Sequence[int], samples: int, read: Sequence[int] = (0, 1, 2, 3)) -> None:
+    """The surface attributes' targets (units ATTRIBUTE_UNIT ..), multisample textures where ``samples`` > 1; the
+    program reads the targets ``read``."""
+    kind = GL.GL_TEXTURE_2D_MULTISAMPLE if samples > 1 else GL.GL_TEXTURE_2D
+    for index, texture in enumerate(textures):
+        if index in read:
+            GL.glUniform1i(program.location(f"u_attributes{index}"), ATTRIBUTE_UNIT + index)
+        GL.glActiveTexture(GL.GL_TEXTURE0 + ATTRIBUTE_UNIT + index)
+        GL.glBindTexture(kind, texture)
     GL.glActiveTexture(GL.GL_TEXTURE0)

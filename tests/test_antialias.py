@@ -9,6 +9,7 @@ the image's mean; a disc of radius r covers pi r^2 of the image; a card of known
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +23,10 @@ from kmpipe.stages.antialiasing import uv_texel_mm
 from kmpipe.stages.fit import fit_manifests
 from kmpipe.stages.render_plan import plan_scene
 from renderer import meshes
+from renderer.environment import Environment
 from renderer.image_io import read_exr
-from renderer.scene import DirectionalLight, GradientBackground, OrthographicCamera, Scattering, Scene
+from renderer.layers import render_layers
+from renderer.scene import DirectionalLight, GradientBackground, OrthographicCamera, Prop, Scattering, Scene
 from renderer.skin import render_skin
 from renderer.stack import ChannelStack
 
@@ -81,6 +84,81 @@ def test_multisampled_a_pixel_takes_the_share_of_its_4_samples_on_the_card():
     plain = lambert(_tilted_card(), camera, HEAD_ON, tuple(ALBEDO), 40, 40).astype(np.float64)
     inside = j[..., 0] == 4
     assert np.array_equal(image[inside], plain[inside])  # bit for bit where the card covers the whole pixel
+
+
+def _joined(*parts: trimesh.Trimesh) -> trimesh.Trimesh:
+    """One mesh of several parts, each keeping its vertex normals and uv."""
+    vertices, faces, normals, uv, offset = [], [], [], [], 0
+    for part in parts:
+        vertices.append(part.vertices)
+        faces.append(part.faces + offset)
+        normals.append(part.vertex_normals)
+        uv.append(part.visual.uv)
+        offset += len(part.vertices)
+    return trimesh.Trimesh(np.vstack(vertices), np.vstack(faces), vertex_normals=np.vstack(normals),
+                           visual=trimesh.visual.TextureVisuals(uv=np.vstack(uv)), process=False)  # fmt: skip
+
+
+def _shares(image: np.ndarray, front: np.ndarray, back: np.ndarray) -> np.ndarray:
+    """j (0 .. 4) with image = back + j / 4 (front - back) in every pixel and channel, asserted."""
+    j = (image - back) / (front - back) * 4.0
+    assert np.allclose(j, np.rint(j), atol=1e-4)
+    j = np.rint(j)
+    assert np.all(j == j[..., :1])
+    return j[..., 0]
+
+
+def test_multisampled_a_crease_of_one_mesh_takes_the_share_of_each_face():
+    """A roof of two faces of one mesh meeting at a ridge (normals 60 degrees apart), turned about the view axis so
+    that the ridge crosses pixels at odd places, lit from one side: each face is uniformly lit, and a pixel the ridge
+    crosses takes j/4 of each, as 4 samples would."""
+    faces = []
+    for side in (-1.0, 1.0):
+        face = meshes.card(20.0, 40.0)  # the roof fills the frame
+        face.apply_transform(trimesh.transformations.translation_matrix((10.0 * side, 0.0, 0.0)))
+        face.apply_transform(trimesh.transformations.rotation_matrix(np.radians(-30.0 * side), (0.0, 1.0, 0.0)))
+        faces.append(face)
+    roof = _joined(*faces)
+    roof.apply_transform(trimesh.transformations.rotation_matrix(np.radians(23.0), (0.0, 0.0, 1.0)))
+    light = DirectionalLight(direction=(-0.6, 0.0, -0.8), radiance=tuple(RADIANCE), cast_shadows=False)
+    camera = OrthographicCamera(half_height=8.0)
+    image = lambert(roof, camera, light, tuple(ALBEDO), 40, 40, multisamples=4).astype(np.float64)
+    normals = [face.vertex_normals[0] @ trimesh.transformations.rotation_matrix(np.radians(23.0), (0, 0, 1))[:3, :3].T
+               for face in faces]  # fmt: skip
+    lit = [ALBEDO * RADIANCE * max(float(n @ -np.array(light.direction)), 0.0) for n in normals]
+    j = _shares(image, lit[0], lit[1])
+    assert {1, 2, 3} <= set(np.unique(j).astype(int))  # the ridge's pixels
+    assert np.count_nonzero((j > 0) & (j < 4)) < 3 * 40  # along the ridge only
+
+
+def test_multisampled_a_surface_over_another_of_the_same_mesh_and_a_prop_behind_both_keep_their_shares():
+    """One mesh of two parallel cards 2 mm apart (the front one turned about the view axis, its vertices half
+    occluded), a prop card behind them, in a uniform environment: each surface renders albedo x L x its occlusion,
+    and every pixel takes j/4 of the surfaces its samples show, though the two cards share a normal."""
+    front = _tilted_card()
+    front.apply_transform(trimesh.transformations.translation_matrix((0.0, 0.0, 2.0)))
+    back = meshes.card(30.0, 30.0)
+    mesh = _joined(front, back)
+    occlusion = np.r_[np.full(len(front.vertices), 0.5), np.ones(len(back.vertices))]
+    prop = Prop(mesh=meshes.card(60.0, 60.0), albedo=(0.2, 0.2, 0.2),
+                model=trimesh.transformations.translation_matrix((0.0, 0.0, -3.0)))  # fmt: skip
+    dark = DirectionalLight(direction=(0.0, 0.0, -1.0), radiance=(0.0, 0.0, 0.0), cast_shadows=False)
+    scene = Scene(mesh=mesh, stack=ChannelStack([], [], tuple(ALBEDO)), camera=OrthographicCamera(half_height=10.0),
+                  lights=[dark], resolution=(40, 40), environment=Environment(np.full((16, 32, 3), 0.7, np.float32)),
+                  occlusion=occlusion, props=[prop], multisamples=4)  # fmt: skip
+    image = render_layers(scene).astype(np.float64)
+    j = _shares(image, 0.5 * ALBEDO * 0.7, ALBEDO * 0.7)
+    assert {0, 1, 2, 3, 4} <= set(np.unique(j).astype(int))
+    plain = render_layers(dataclasses.replace(scene, multisamples=1)).astype(np.float64)
+    assert np.array_equal(image[(j == 0) | (j == 4)], plain[(j == 0) | (j == 4)])  # one surface: bit for bit
+    # The prop lies wholly behind the back card: without it the frame is the same, bit for bit.
+    assert np.array_equal(render_layers(dataclasses.replace(scene, props=[])).astype(np.float64), image)
+
+
+def test_more_meshes_than_the_pass_can_tell_apart_are_refused():
+    props = [Prop(mesh=meshes.card(1.0, 1.0), albedo=(0.5, 0.5, 0.5))] * 8
+    with pytest.raises(ValueError, match="at most 7 props"):
+        lambert(_tilted_card(), OrthographicCamera(half_height=10.0), HEAD_ON, tuple(ALBEDO), 8, 8, props=props)
 
 
 def test_multisampled_coverage_of_a_disc_is_its_area():

@@ -672,17 +672,20 @@ def test_without_an_environment_the_frame_is_as_before_and_with_one_the_unlit_si
 
 
 def test_the_soft_shadow_code_is_compiled_only_into_the_program_that_needs_it():
-    """``defines`` reach the shader: only the SOFT_SHADOWS program reads the shadow maps' raw depths (the PCSS code
-    costs on llvmpipe even where no pixel takes it, so hard lights get a program without it)."""
+    """``defines`` reach the shader: only a program with a soft light (SOFT_LIGHTS) reads the shadow maps' raw depths
+    (the PCSS code costs on llvmpipe even where no pixel takes it, so hard lights get a program without it)."""
     from renderer import context
     from renderer.context import GL
     from renderer.program import Program
 
+    counts = {"LAYER_COUNT": 1, "GROUP_COUNT": 1, "LIGHT_COUNT": 1, "SAMPLES": 1, "SHADOW_LIGHTS": 1}
+    off = ("PRECOMPOSED", "SUBSTRATE_MAP", "ROUGHNESS_MAP", "ENVIRONMENT", "FLOOR", "ORTHOGRAPHIC", "SKIN_SPLIT",
+           "THICKNESS_MAPS", "LOBES", "POINT_LIGHTS")  # fmt: skip
+    switches = {**counts, **dict.fromkeys(off, 0)}
     with context.lock:
         context.make_current(8, 8)
-        names = ("km_layers.vert", "km_layers.frag")
-        counts = {"LAYER_COUNT": 1, "GROUP_COUNT": 1, "LIGHT_COUNT": 1}
-        programs = {soft: Program(*names, defines={"SOFT_SHADOWS": soft, **counts}) for soft in (0, 1)}
+        names = ("fullscreen.vert", "km_layers.frag")
+        programs = {soft: Program(*names, defines={"SOFT_LIGHTS": soft, **switches}) for soft in (0, 1)}
         try:
             found = {soft: GL.glGetUniformLocation(p.handle, "u_shadow_range") >= 0 for soft, p in programs.items()}
         finally:

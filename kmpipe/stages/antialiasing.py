@@ -2,7 +2,7 @@
 
 ``antialias = k`` asks for k x k samples a pixel. Two ways to take them:
 
-- multisampling (:mod:`renderer.multisample`): k^2 coverage samples a pixel, shaded once a pixel and triangle. It
+- multisampling (:mod:`renderer.multisample`): k^2 coverage samples a pixel, shaded once a pixel and surface. It
   antialiases silhouettes and every edge between surfaces for about the cost of one shaded sample a pixel, but not
   what varies inside a triangle; here it stops at 4 samples (k = 2).
 - supersampling (:func:`renderer.scene.supersampled`): the frame rendered k times larger and box-filtered, every

@@ -1,5 +1,17 @@
-#version 330 core
-// Kubelka-Munk layer compositing with per-layer specular lobes, under up to 4 lights with shadow maps.
+#version 400 core
+// Kubelka-Munk layer compositing with per-layer specular lobes, under up to 4 lights with shadow maps: the shading pass
+// of renderer.layers, drawn over the whole frame (fullscreen.vert) once per mesh, reading what each sample shows from
+// the surface attributes (surface_attributes.frag: position, view depth, normals, occlusion, uv, the mesh's index).
+//
+// Samples and pixels. A pixel's samples that show this mesh (u_object; the stencil lets only pixels with one through)
+// are grouped: a sample joins the first one not yet shaded when it shows the same smooth surface, its normal within
+// SAME_COS of the other's and its view depth within SAME_PIXELS pixel footprints (divided by max(|n.v|, 0.25), for
+// a surface seen at a grazing angle) of it. Each group is shaded once, at its first sample's attributes, and counts
+// for its number of samples; the outputs are the sum over groups of count x value / SAMPLES, added (blending) to
+// what the other meshes' passes put there. So a pixel inside one triangle is shaded once and keeps its value
+// exactly, a pixel crossed by a silhouette or a crease takes the share of its samples on each side, and a pixel
+// where two triangles of one smooth surface meet is shaded once, as multisampling shades a triangle once a pixel.
+// Alpha is the share of samples shown (the background fills the rest, renderer.background).
 //
 // Diffuse part. Up to 4 layers, listed bottom-up (layer 0 lies on the substrate). For each layer the fragment looks
 // up the reflectance R0 and transmittance T of the film at its thickness X (mm) in an optical table, interpolating
@@ -8,7 +20,7 @@
 // The substrate is uniform (u_substrate) or varies over uv (an albedo texture): then its channels are a mix of three
 // basis reflectances with weights read from u_substrate_map, clamped to [0, 1].
 // Channels are rgb (3) or spectral bands (up to MAX_CHANNELS), processed four at a time as vec4 groups; the
-// composite is converted to linear RGB with u_to_rgb. In precomposed mode (u_precomposed = 1, the `exact` render
+// composite is converted to linear RGB with u_to_rgb. In precomposed mode (PRECOMPOSED = 1, the `exact` render
 // mode) the stack's linear RGB reflectance and each layer's specular attenuation come ready-made from u_composite.
 //
 // Specular part (thesis eq. 3.15, Kelemen and Szirmay-Kalos 2001), for each layer with a lobe, at the layer's own
@@ -21,13 +33,13 @@
 // converted to RGB like the diffuse part).
 //
 // The substrate may have a lobe of its own (skin: F0 ~ 0.028), attenuated by every film (A = product of all T^2),
-// its roughness from a map over uv where there is one (u_use_roughness_map). A film's own lobe is weighted by its
+// its roughness from a map over uv where there is one (ROUGHNESS_MAP). A film's own lobe is weighted by its
 // cover, clamp(t / u_lobe_cover_mm, 0, 1) (renderer.stack.LOBE_COVER_MM): where a thickness map falls to zero the film,
 // and its gloss, are gone (a precomposed stack comes with the cover in its attenuation).
 //
-// Fine detail (u_use_normal_map): every term uses the shading normal of shading_normal(), the normal map's detail
-// over the interpolated normal, its tilt smoothed by the films' total thickness t as exp(-t / u_fill_mm) (a film
-// fills fine lines); shadow lookups keep the interpolated normal.
+// Fine detail: every term uses the shading normal (surface_attributes.frag: the normal map's detail over the
+// interpolated normal, its tilt smoothed by the films' total thickness, as a film fills fine lines); shadow lookups
+// keep the interpolated normal.
 //
 // Radiance. With E_l the light's value for a white Lambert surface facing it (the unit of the whole renderer) and
 // v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, looked up 0.5 to 2 texels off the
@@ -35,7 +47,7 @@
 //   colour = sum over lights of E_l v_l max(N.L, 0) (R_rgb + pi sum_i A_i f_spec,i)
 // (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
 //
-// Environment (u_env_on = 1; renderer.environment): with the normal n and mirror direction r = reflect(-v, n) turned
+// Environment (ENVIRONMENT = 1; renderer.environment): with the normal n and mirror direction r = reflect(-v, n) turned
 // into the environment's frame by u_env_rotation, and AO the vertex's baked ambient occlusion (renderer.occlusion)
 // times, on a floor, its baked grid's (floor_occlusion below),
 //   colour += s AO (E(n) / pi) R_rgb + s AO sum_i A_i (F0_i a(mu, m_i) + b(mu, m_i)) L_m_i(r)
@@ -43,11 +55,11 @@
 // levels) and (a, b) the lobe albedo table at mu = max(n.v, 0) (the split sum). The diffuse term enters the skin like
 // a light's: E / pi AO (R_rgb - R_black) goes to f_skin in split mode.
 //
-// Split mode (u_split = 1, the skin pass of renderer.skin): the light that entered the substrate and came back out,
-// E v cos (R_rgb - R_black) with R_black the stack's reflectance over a black substrate, goes to f_skin (to be blurred
-// by subsurface scattering) with the skin mask in its alpha (1 where u_skin = 1); everything else,
-// E v cos (R_black + pi sum A f), to f_colour; f_depth holds the view-space depth (mm). Without a blur,
-// f_colour + f_skin = colour.
+// Split mode (SKIN_SPLIT = 1: the skin pass of renderer.skin, on the skin): the light that entered the substrate and
+// came back out, E v cos (R_rgb - R_black) with R_black the stack's reflectance over a black substrate, goes to f_skin
+// (to be blurred by subsurface scattering) with the skin mask in its alpha; everything else, E v cos (R_black +
+// pi sum A f), to f_colour. f_depth holds the view-space depth (mm) of every surface. Without a blur, f_colour +
+// f_skin = colour.
 //
 // Table texture layout (RGBA32F, read with texelFetch, one texel column per thickness sample):
 //   rows 0 .. G-1      R0 of channel group g (channels 4g .. 4g+3)
@@ -57,9 +69,18 @@
 // Composite texture (precomposed mode; 2-D array over uv): layer 0 the stack's RGB reflectance over the substrate,
 // layer 1 over black, layer 2 the substrate lobe's attenuation, layer 3 + i the attenuation A of film i (bottom-up).
 
-// Compile-time constants, defined by renderer.layers (one program per combination, so that the loops over them unroll
-// and the per-layer arrays stay in registers): LAYER_COUNT (the films, 0 .. MAX_LAYERS), GROUP_COUNT
-// (G = ceil(channels / 4), 1 .. MAX_GROUPS), LIGHT_COUNT (1 .. MAX_LIGHTS), SOFT_SHADOWS (0 or 1).
+// Compile-time constants, defined by renderer.layers for each mesh it shades (one program per combination: the loops
+// over the counts unroll and the per-layer arrays stay in registers, and a switch leaves out the code it turns off,
+// which llvmpipe would otherwise run under an empty mask): LAYER_COUNT (the films, 0 .. MAX_LAYERS), GROUP_COUNT
+// (G = ceil(channels / 4), 1 .. MAX_GROUPS), LIGHT_COUNT (1 .. MAX_LIGHTS), SAMPLES (samples a pixel of the surface
+// attributes: 1, 2 or 4); switches 0 or 1: PRECOMPOSED (reflectance and attenuation from u_composite), SUBSTRATE_MAP
+// (the substrate varies over uv: an albedo texture), ROUGHNESS_MAP (the substrate lobe's roughness varies over uv),
+// ENVIRONMENT (light from the environment), FLOOR (a floor with a baked occlusion grid), ORTHOGRAPHIC (the view
+// direction is u_view_vector everywhere), SKIN_SPLIT (the skin pass's outputs: this surface is skin); bit masks (bit i
+// for film or light i): THICKNESS_MAPS (the film's thickness from its map, else u_thickness), LOBES (the film has a
+// lobe; bit MAX_LAYERS: the substrate), POINT_LIGHTS (else directional), SHADOW_LIGHTS (the light's shadow map is
+// looked up), SOFT_LIGHTS (an area light: soft shadows).
+#define BIT(mask, i) (((mask) >> (i)) & 1)
 #define MAX_LAYERS 4
 #define MAX_GROUPS 8
 #define MAX_CHANNELS 32
@@ -67,14 +88,30 @@
 #define PI 3.14159265358979
 #define MAX_LEVELS 8
 
-in vec3 v_position;
-in vec3 v_normal;
-in vec2 v_uv;
-in float v_occlusion;
-in float v_view_depth;
+#define SAME_COS 0.9999
+#define SAME_PIXELS 1.0
+
+#if SAMPLES > 1
+#define ATTRIBUTES sampler2DMS
+#else
+#define ATTRIBUTES sampler2D
+#endif
+uniform ATTRIBUTES u_attributes0;            // the surface attributes (surface_attributes.frag), targets 0 .. 3
+uniform ATTRIBUTES u_attributes1;
+uniform ATTRIBUTES u_attributes2;
+uniform ATTRIBUTES u_attributes3;
+uniform float u_object;                      // the mesh this pass shades
+uniform vec2 u_footprint;                    // a pixel's size (mm) at view depth d: x + y d
+
+// The sample being shaded (shade() reads these as a forward pass reads its varyings).
+vec3 g_position = vec3(0.0);
+vec3 g_normal = vec3(0.0, 0.0, 1.0);
+vec2 g_uv = vec2(0.0);
+float g_occlusion = 1.0;
+float g_view_depth = 0.0;
+vec3 g_shading = vec3(0.0, 0.0, 1.0);
 
 uniform int u_sample_count[MAX_LAYERS];      // thickness samples per layer table (>= 1)
-uniform int u_use_map[MAX_LAYERS];           // 1: thickness from the layer's map texture; 0: u_thickness
 uniform float u_thickness[MAX_LAYERS];       // uniform layer thickness, mm
 uniform vec2 u_axis[MAX_LAYERS];             // an evenly spaced thickness axis: (first sample, 1 / spacing), mm and
                                              // 1/mm; spacing unknown (0, 0): the axis is searched
@@ -87,39 +124,30 @@ uniform sampler2D u_map1;
 uniform sampler2D u_map2;
 uniform sampler2D u_map3;
 uniform vec4 u_substrate[MAX_GROUPS];        // substrate albedo per channel, in [0, 1]
-uniform int u_use_substrate_map;             // 1: the substrate varies over uv (an albedo texture)
 uniform sampler2D u_substrate_map;           // rgb: weights w of the three basis spectra at this uv
 uniform vec4 u_substrate_basis[3 * MAX_GROUPS];  // basis b (0 .. 2), group g at b * MAX_GROUPS + g
 uniform vec3 u_to_rgb[MAX_CHANNELS];         // row c: linear RGB contributed by unit reflectance in channel c
-uniform int u_precomposed;                   // 1: reflectance and attenuation from u_composite
 uniform sampler2DArray u_composite;          // precomposed layers (layout above)
 
-uniform int u_any_specular;                  // 1: some layer or the substrate has a lobe
-uniform int u_specular_on[MAX_LAYERS + 1];   // 1: the film (bottom-up index) has a lobe; index MAX_LAYERS: substrate
 uniform float u_roughness[MAX_LAYERS + 1];   // Beckmann m (RMS microfacet slope), > 0
 uniform float u_f0[MAX_LAYERS + 1];          // Fresnel reflectance at normal incidence
-uniform int u_split;                         // 1: skin pass outputs (f_skin, f_depth); 0: f_colour only
-uniform int u_skin;                          // 1: this surface is skin (its substrate light goes to f_skin)
 
-uniform int u_light_is_point[MAX_LIGHTS];    // 0: directional, 1: point
 uniform vec3 u_light_vector[MAX_LIGHTS];     // directional: unit vector towards the light; point: position (mm)
 uniform vec3 u_light_radiance[MAX_LIGHTS];   // E (at the reference distance for a point light)
 uniform float u_light_reference[MAX_LIGHTS]; // point light: distance (mm) at which it delivers E
-uniform int u_light_shadow[MAX_LIGHTS];      // 1: look the light's shadow map up
 uniform mat4 u_shadow_matrix[MAX_LIGHTS];    // world -> shadow map texture coordinates and depth, [0, 1]^3
 uniform float u_shadow_texel[MAX_LIGHTS];    // size of a shadow map texel at the scene's centre, mm
 uniform sampler2DShadow u_shadow0;
 uniform sampler2DShadow u_shadow1;
 uniform sampler2DShadow u_shadow2;
 uniform sampler2DShadow u_shadow3;
-uniform float u_light_softness[MAX_LIGHTS];  // 0: a hard light; directional: 2 tan(angle / 2); point: diameter, mm
+uniform float u_light_softness[MAX_LIGHTS];  // an area light's size: directional: 2 tan(angle / 2); point: diameter, mm
 uniform vec2 u_shadow_range[MAX_LIGHTS];     // near and far distance (mm) of the light's shadow frustum
 uniform sampler2D u_shadow_depth0;           // the shadow maps' raw depths (no comparison), for the blocker search
 uniform sampler2D u_shadow_depth1;
 uniform sampler2D u_shadow_depth2;
 uniform sampler2D u_shadow_depth3;
 
-uniform int u_env_on;                        // 1: light from the environment
 uniform sampler2D u_env_irradiance;          // E / pi over directions (equirectangular, u wraps)
 uniform sampler2DArray u_env_specular;       // prefiltered radiance per roughness level (equirectangular)
 uniform sampler2D u_env_lobe;                // lobe albedo (a, b) over mu (s) and sqrt(m) (t), texel centres at ends
@@ -129,36 +157,26 @@ uniform int u_env_level_count;               // specular levels (<= MAX_LEVELS)
 uniform float u_env_level_m[MAX_LEVELS];     // their Beckmann m, increasing (level 0: m = 0, the image itself)
 uniform vec2 u_env_lobe_range;               // sqrt(m) at the lobe table's first and last rows
 
-uniform int u_floor_on;                      // 1: this surface is a floor with a baked occlusion grid
 uniform sampler2D u_floor;                   // the grid's AO (red): texel row i, column j at z_i, x_j (bilinear)
 uniform mat4 u_floor_frame;                  // world -> the grid's frame (the product unturned), mm
 uniform vec4 u_floor_grid;                   // centre x, centre z, half width (mm) and nodes per side n
 uniform vec3 u_floor_fade;                   // floor height y, fade height (mm) and the rim's width (in half widths)
 
-uniform int u_use_normal_map;                // 1: fine detail from a tangent-space normal map over uv
-uniform sampler2D u_normal_map;              // unit vectors: x along +u, y along +v, z out of the surface
-uniform sampler2D u_film_total;              // total film thickness over uv (mm, red), which smooths the detail
-uniform float u_fill_mm;                     // film thickness that smooths the detail by 1/e
-uniform int u_use_roughness_map;             // 1: the substrate lobe's roughness varies over uv
 uniform sampler2D u_roughness_map;           // its Beckmann m (red)
 uniform float u_lobe_cover_mm;               // a film's lobe is weighted by clamp(thickness / this, 0, 1)
 
-uniform int u_visible_on;                    // 1: skip fragments behind u_visible_depth at every sample
-uniform sampler2DMS u_visible_depth;         // per sample: the depth bound of what it shows (renderer.visible_depth)
-uniform int u_visible_samples;               // samples a pixel of u_visible_depth
-uniform int u_orthographic;                  // 1: the view direction is u_view_vector everywhere
-uniform vec3 u_view_vector;                  // orthographic: unit vector towards the camera; else: eye (mm)
+uniform vec3 u_view_vector;                  // ORTHOGRAPHIC: unit vector towards the camera; else: eye (mm)
 
 layout(location = 0) out vec4 f_colour;
 layout(location = 1) out vec4 f_skin;
 layout(location = 2) out vec4 f_depth;
 
 float layer_thickness(int layer) {
-    if (u_use_map[layer] == 0) return u_thickness[layer];
-    if (layer == 0) return texture(u_map0, v_uv).r;
-    if (layer == 1) return texture(u_map1, v_uv).r;
-    if (layer == 2) return texture(u_map2, v_uv).r;
-    return texture(u_map3, v_uv).r;
+    if (BIT(THICKNESS_MAPS, layer) == 0) return u_thickness[layer];
+    if (layer == 0) return textureLod(u_map0, g_uv, 0.0).r;
+    if (layer == 1) return textureLod(u_map1, g_uv, 0.0).r;
+    if (layer == 2) return textureLod(u_map2, g_uv, 0.0).r;
+    return textureLod(u_map3, g_uv, 0.0).r;
 }
 
 vec4 fetch(int layer, ivec2 texel) {
@@ -214,12 +232,12 @@ vec3 group_to_rgb(vec4 channels, int g) {
 void stack_optics(float thickness[MAX_LAYERS], out vec3 reflectance, out vec3 over_black,
                   out vec3 attenuation[MAX_LAYERS + 1]) {
     for (int layer = 0; layer <= MAX_LAYERS; ++layer) attenuation[layer] = vec3(0.0);
-    if (u_precomposed == 1) {
-        reflectance = texture(u_composite, vec3(v_uv, 0.0)).rgb;
-        over_black = texture(u_composite, vec3(v_uv, 1.0)).rgb;
-        attenuation[MAX_LAYERS] = texture(u_composite, vec3(v_uv, 2.0)).rgb;
+    if (PRECOMPOSED == 1) {
+        reflectance = textureLod(u_composite, vec3(g_uv, 0.0), 0.0).rgb;
+        over_black = textureLod(u_composite, vec3(g_uv, 1.0), 0.0).rgb;
+        attenuation[MAX_LAYERS] = textureLod(u_composite, vec3(g_uv, 2.0), 0.0).rgb;
         for (int layer = 0; layer < LAYER_COUNT; ++layer) {
-            attenuation[layer] = texture(u_composite, vec3(v_uv, float(layer + 3))).rgb;
+            attenuation[layer] = textureLod(u_composite, vec3(g_uv, float(layer + 3)), 0.0).rgb;
         }
         return;
     }
@@ -230,10 +248,13 @@ void stack_optics(float thickness[MAX_LAYERS], out vec3 reflectance, out vec3 ov
     }
     reflectance = vec3(0.0);
     over_black = vec3(0.0);
-    vec3 mix_weights = u_use_substrate_map == 1 ? texture(u_substrate_map, v_uv).rgb : vec3(0.0);
+    vec3 mix_weights = vec3(0.0);
+#if SUBSTRATE_MAP
+    mix_weights = textureLod(u_substrate_map, g_uv, 0.0).rgb;
+#endif
     for (int g = 0; g < GROUP_COUNT; ++g) {
         vec4 ground = u_substrate[g];
-        if (u_use_substrate_map == 1) {
+        if (SUBSTRATE_MAP == 1) {
             ground = clamp(mix_weights.r * u_substrate_basis[g] + mix_weights.g * u_substrate_basis[MAX_GROUPS + g]
                            + mix_weights.b * u_substrate_basis[2 * MAX_GROUPS + g], 0.0, 1.0);
         }
@@ -253,7 +274,7 @@ void stack_optics(float thickness[MAX_LAYERS], out vec3 reflectance, out vec3 ov
         }
         reflectance += group_to_rgb(ground, g);
         over_black += group_to_rgb(black, g);
-        if (u_any_specular == 1) {
+        if (LOBES != 0) {
             // Attenuation of film i: product of T^2 over the films above it (the top film: 1 in every channel); the
             // substrate's: over all films.
             vec4 above = vec4(1.0);
@@ -284,14 +305,14 @@ float shadow_depth(int light, vec2 at) {
 // frustum, s = f n / (f - depth (f - n)) for a point light's perspective one.
 float light_distance(int light, float depth) {
     vec2 r = u_shadow_range[light];
-    if (u_light_is_point[light] == 1) return r.x * r.y / (r.y - depth * (r.y - r.x));
+    if (BIT(POINT_LIGHTS, light) == 1) return r.x * r.y / (r.y - depth * (r.y - r.x));
     return r.x + depth * (r.y - r.x);
 }
 
 // Penumbra width (mm) of a light at a receiver `receiver` mm from it behind an occluder `blocker` mm from it.
 float penumbra(int light, float receiver, float blocker) {
     float gap = max(receiver - blocker, 0.0);
-    return u_light_softness[light] * (u_light_is_point[light] == 1 ? gap / max(blocker, 1e-6) : gap);
+    return u_light_softness[light] * (BIT(POINT_LIGHTS, light) == 1 ? gap / max(blocker, 1e-6) : gap);
 }
 
 const vec2 DISC[16] = vec2[16](
@@ -307,9 +328,9 @@ const vec2 DISC[16] = vec2[16](
 // texels), the disc turned per pixel by interleaved gradient noise (Jimenez 2014), which supersampling averages out.
 float shadow_visibility(int light, vec3 position) {
     // (if/else blocks, no early returns: llvmpipe skips a block no pixel takes but runs the code after a return; and
-    // the PCSS code, compiled only into the SOFT_SHADOWS program (renderer.layers), costs even where no pixel takes it)
+    // the PCSS code, compiled only into a program with SOFT_LIGHTS (renderer.layers), costs even where no pixel takes it)
     float visibility = 1.0;
-    if (u_light_shadow[light] != 0) {
+    if (BIT(SHADOW_LIGHTS, light) == 1) {
         vec4 coordinates = u_shadow_matrix[light] * vec4(position, 1.0);
         vec3 p = coordinates.xyz / coordinates.w;
         vec2 texel;
@@ -317,8 +338,8 @@ float shadow_visibility(int light, vec3 position) {
         else if (light == 1) texel = 1.0 / vec2(textureSize(u_shadow1, 0));
         else if (light == 2) texel = 1.0 / vec2(textureSize(u_shadow2, 0));
         else texel = 1.0 / vec2(textureSize(u_shadow3, 0));
-#if SOFT_SHADOWS
-        if (u_light_softness[light] <= 0.0) {
+#if SOFT_LIGHTS != 0
+        if (BIT(SOFT_LIGHTS, light) == 0) {
 #else
         {
 #endif
@@ -328,7 +349,7 @@ float shadow_visibility(int light, vec3 position) {
             }
             visibility = lit / 9.0;
         }
-#if SOFT_SHADOWS
+#if SOFT_LIGHTS != 0
         else {
             float angle = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
             mat2 turn = mat2(cos(angle), sin(angle), -sin(angle), cos(angle));
@@ -365,8 +386,8 @@ float shadow_visibility(int light, vec3 position) {
 // darkening 1 - AO scaled by smoothstep((1 - max |s|) / rim) and by smoothstep(1 - (y - floor) / fade); 1 elsewhere.
 float floor_occlusion() {
     float open = 1.0;
-    if (u_floor_on == 1) {
-        vec3 p = (u_floor_frame * vec4(v_position, 1.0)).xyz;
+    if (FLOOR == 1) {
+        vec3 p = (u_floor_frame * vec4(g_position, 1.0)).xyz;
         vec2 s = (p.xz - u_floor_grid.xy) / u_floor_grid.z;
         float n = u_floor_grid.w;
         float value = textureLod(u_floor, ((s + 1.0) * 0.5 * (n - 1.0) + 0.5) / n, 0.0).r;
@@ -380,35 +401,10 @@ float floor_occlusion() {
 // Beckmann roughness of each lobe: the film's, or the substrate's (index MAX_LAYERS; from its map where there is one).
 void lobe_roughness(out float m[MAX_LAYERS + 1]) {
     for (int k = 0; k < MAX_LAYERS; ++k) m[k] = u_roughness[k];
-    m[MAX_LAYERS] = u_use_roughness_map == 1 ? max(texture(u_roughness_map, v_uv).r, 0.02) : u_roughness[MAX_LAYERS];
-}
-
-// The shading normal: the interpolated normal n tilted by the normal map's detail d in the surface's tangent frame
-// (T along +u, B along +v, from the screen-space derivatives of position and uv: Schueler's cotangent frame), the
-// detail's tilt scaled by k = exp(-t / u_fill_mm), t the films' total thickness here (a film fills fine lines):
-//   n' = normalize(T d.x k + B d.y k + n d.z).
-vec3 shading_normal(vec3 n) {
-    vec3 shaded = n;
-    if (u_use_normal_map == 1) {
-        vec3 dp1 = dFdx(v_position);
-        vec3 dp2 = dFdy(v_position);
-        vec2 duv1 = dFdx(v_uv);
-        vec2 duv2 = dFdy(v_uv);
-        vec3 dp2perp = cross(dp2, n);
-        vec3 dp1perp = cross(n, dp1);
-        vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
-        vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
-        float longest = max(dot(t, t), dot(b, b));
-        if (longest > 1e-30) {  // else uv does not change here: no frame
-            float scale = inversesqrt(longest);
-            vec3 d = texture(u_normal_map, v_uv).xyz;
-            float k = exp(-max(texture(u_film_total, v_uv).r, 0.0) / u_fill_mm);
-            vec3 tilted = (t * scale) * (d.x * k) + (b * scale) * (d.y * k) + n * d.z;
-            float length2 = dot(tilted, tilted);
-            if (length2 > 1e-12) shaded = tilted * inversesqrt(length2);
-        }
-    }
-    return shaded;
+    m[MAX_LAYERS] = u_roughness[MAX_LAYERS];
+#if ROUGHNESS_MAP
+    m[MAX_LAYERS] = max(textureLod(u_roughness_map, g_uv, 0.0).r, 0.02);
+#endif
 }
 
 // Kelemen / Szirmay-Kalos lobe f_spec (1/sr) of lobe `k` (a film's bottom-up index, or MAX_LAYERS: the substrate)
@@ -455,49 +451,36 @@ float lobe_albedo(int k, float m, float mu) {
     return u_f0[k] * ab.x + ab.y;
 }
 
-// True where this fragment lies behind what every sample of its pixel shows (renderer.visible_depth): its nearest
-// depth in the pixel, z - 0.5 fwidth(z), beyond the largest of the samples' depth bounds. Its outputs are then
-// discarded by the depth test at every sample, and it need not be shaded.
-bool hidden() {
-    bool behind = false;
-    if (u_visible_on == 1) {
-        ivec2 pixel = ivec2(gl_FragCoord.xy);
-        float bound = 0.0;
-        for (int s = 0; s < u_visible_samples; ++s) bound = max(bound, texelFetch(u_visible_depth, pixel, s).r);
-        behind = gl_FragCoord.z - 0.5 * fwidth(gl_FragCoord.z) > bound + 1e-6;
-    }
-    return behind;
-}
-
-void shade() {
+// The outputs of the sample in v_*: colour, skin light (alpha: the skin mask) and view depth.
+void shade(out vec4 out_colour, out vec4 out_skin, out vec4 out_depth) {
     vec3 reflectance;
     vec3 over_black;
     vec3 attenuation[MAX_LAYERS + 1];
     float thickness[MAX_LAYERS];
     for (int layer = 0; layer < MAX_LAYERS; ++layer) {
         thickness[layer] = 0.0;
-        if (u_precomposed == 0 && layer < LAYER_COUNT) thickness[layer] = layer_thickness(layer);
+        if (PRECOMPOSED == 0 && layer < LAYER_COUNT) thickness[layer] = layer_thickness(layer);
     }
     stack_optics(thickness, reflectance, over_black, attenuation);
-    if (u_precomposed == 0) {  // (precomposed stacks come with their films' cover applied)
+    if (PRECOMPOSED == 0) {  // (precomposed stacks come with their films' cover applied)
         for (int layer = 0; layer < LAYER_COUNT; ++layer) {
             attenuation[layer] *= clamp(thickness[layer] / u_lobe_cover_mm, 0.0, 1.0);
         }
     }
     float m[MAX_LAYERS + 1];
     lobe_roughness(m);
-    vec3 geometric = normalize(v_normal);
-    vec3 n = shading_normal(geometric);
-    vec3 v = u_orthographic == 1 ? u_view_vector : normalize(u_view_vector - v_position);
-    bool split = u_split == 1 && u_skin == 1;
+    vec3 geometric = normalize(g_normal);
+    vec3 n = g_shading;
+    vec3 v = ORTHOGRAPHIC == 1 ? u_view_vector : normalize(u_view_vector - g_position);
+    bool split = SKIN_SPLIT == 1;
     vec3 surface = split ? over_black : reflectance;
     vec3 colour = vec3(0.0);
     vec3 skin = vec3(0.0);
     for (int light = 0; light < LIGHT_COUNT; ++light) {
         vec3 l;
         vec3 e = u_light_radiance[light];
-        if (u_light_is_point[light] == 1) {
-            vec3 to_light = u_light_vector[light] - v_position;
+        if (BIT(POINT_LIGHTS, light) == 1) {
+            vec3 to_light = u_light_vector[light] - g_position;
             float d = length(to_light);
             l = to_light / d;
             e *= (u_light_reference[light] * u_light_reference[light]) / (d * d);
@@ -508,44 +491,95 @@ void shade() {
         if (cos_theta <= 0.0) continue;
         vec3 specular = vec3(0.0);
         for (int k = 0; k <= MAX_LAYERS; ++k) {
-            if (u_specular_on[k] == 1 && (k < LAYER_COUNT || k == MAX_LAYERS)) {
+            if (BIT(LOBES, k) == 1 && (k < LAYER_COUNT || k == MAX_LAYERS)) {
                 specular += attenuation[k] * kelemen(k, m[k], n, l, v);
             }
         }
         // Looked up a little off the surface, along the normal (more at grazing light), so that a curved surface
         // does not shadow itself between the map's texels ("acne").
         float cos_geometric = max(dot(geometric, l), 0.0);
-        vec3 lookup = v_position + geometric * u_shadow_texel[light] * (0.5 + 1.5 * (1.0 - cos_geometric));
+        vec3 lookup = g_position + geometric * u_shadow_texel[light] * (0.5 + 1.5 * (1.0 - cos_geometric));
         vec3 incident = e * shadow_visibility(light, lookup) * cos_theta;
         colour += incident * (surface + PI * specular);
         skin += incident * (reflectance - over_black);
     }
-    if (u_env_on == 1) {
-        float open_sky = u_env_intensity * v_occlusion * floor_occlusion();
+    if (ENVIRONMENT == 1) {
+        float open_sky = u_env_intensity * g_occlusion * floor_occlusion();
         vec3 irradiance = textureLod(u_env_irradiance, equirect(n), 0.0).rgb * open_sky;
         colour += irradiance * surface;
         skin += irradiance * (reflectance - over_black);
-        if (u_any_specular == 1) {
+        if (LOBES != 0) {
             vec2 mirror = equirect(reflect(-v, n));
             float mu = clamp(dot(n, v), 0.0, 1.0);
             for (int k = 0; k <= MAX_LAYERS; ++k) {
-                if (u_specular_on[k] == 1 && (k < LAYER_COUNT || k == MAX_LAYERS)) {
+                if (BIT(LOBES, k) == 1 && (k < LAYER_COUNT || k == MAX_LAYERS)) {
                     colour += attenuation[k] * lobe_albedo(k, m[k], mu) * environment_specular(mirror, m[k]) * open_sky;
                 }
             }
         }
     }
-    f_colour = vec4(colour, 1.0);
-    f_skin = split ? vec4(skin, 1.0) : vec4(0.0);  // alpha: the skin mask
-    f_depth = vec4(v_view_depth, 0.0, 0.0, 1.0);
+    out_colour = vec4(colour, 1.0);
+    out_skin = split ? vec4(skin, 1.0) : vec4(0.0);  // alpha: the skin mask
+    out_depth = vec4(g_view_depth, 0.0, 0.0, 1.0);
+}
+
+// Sample s of the surface attributes, target t (0 .. 3).
+vec4 fetch_attribute(int t, ivec2 pixel, int s) {
+#if SAMPLES > 1
+    if (t == 0) return texelFetch(u_attributes0, pixel, s);
+    if (t == 1) return texelFetch(u_attributes1, pixel, s);
+    if (t == 2) return texelFetch(u_attributes2, pixel, s);
+    return texelFetch(u_attributes3, pixel, s);
+#else
+    if (t == 0) return texelFetch(u_attributes0, pixel, 0);
+    if (t == 1) return texelFetch(u_attributes1, pixel, 0);
+    if (t == 2) return texelFetch(u_attributes2, pixel, 0);
+    return texelFetch(u_attributes3, pixel, 0);
+#endif
 }
 
 void main() {
-    if (hidden()) {
-        f_colour = vec4(0.0);
-        f_skin = vec4(0.0);
-        f_depth = vec4(0.0);
-    } else {
-        shade();
+    ivec2 pixel = ivec2(gl_FragCoord.xy);
+    int pending = 0;  // the samples of this mesh not shaded yet, one bit each
+    for (int s = 0; s < SAMPLES; ++s) {
+        if (fetch_attribute(2, pixel, s).w == u_object) pending |= 1 << s;
     }
+    vec4 colour = vec4(0.0);
+    vec4 skin = vec4(0.0);
+    vec4 depth = vec4(0.0);
+    // (a loop whose trip count llvmpipe cannot know: a block of pixels that each hold one group runs it once)
+    while (pending != 0) {
+        int first = findLSB(pending);
+        vec4 a0 = fetch_attribute(0, pixel, first);
+        vec4 a1 = fetch_attribute(1, pixel, first);
+        vec4 a2 = fetch_attribute(2, pixel, first);
+        g_position = a0.xyz;
+        g_view_depth = a0.w;
+        g_normal = a1.xyz;
+        g_occlusion = a1.w;
+        g_shading = a2.xyz;
+        g_uv = fetch_attribute(3, pixel, first).xy;
+        int group = 1 << first;
+#if SAMPLES > 1
+        vec3 normal = normalize(a1.xyz);
+        vec3 view = ORTHOGRAPHIC == 1 ? u_view_vector : normalize(u_view_vector - a0.xyz);
+        float reach = SAME_PIXELS * (u_footprint.x + u_footprint.y * a0.w) / max(abs(dot(normal, view)), 0.25);
+        for (int s = first + 1; s < SAMPLES; ++s) {
+            if ((pending & (1 << s)) != 0 && abs(fetch_attribute(0, pixel, s).w - a0.w) <= reach
+                && dot(normalize(fetch_attribute(1, pixel, s).xyz), normal) >= SAME_COS) group |= 1 << s;
+        }
+#endif
+        pending &= ~group;
+        vec4 c;
+        vec4 k;
+        vec4 d;
+        shade(c, k, d);
+        float count = float(bitCount(group));
+        colour += count * c;
+        skin += count * k;
+        depth += count * d;
+    }
+    f_colour = colour / float(SAMPLES);
+    f_skin = skin / float(SAMPLES);
+    f_depth = depth / float(SAMPLES);
 }
