@@ -42,15 +42,17 @@ from renderer.meshes import GpuMesh
 from renderer.program import Program, shared_program
 from renderer.scene import MAX_LIGHTS, Light, OrthographicCamera, Scene, supersampled
 from renderer.shadows import MARGIN, ShadowMap, light_camera, shadow_matrix
-from renderer.stack import MAX_CHANNELS, MAX_LAYERS, ChannelStack, Precomposed
+from renderer.stack import MAX_LAYERS, ChannelStack
+from renderer.stack_uniforms import bind_channel_stack, bind_precomposed, channel_uniforms, composite_texels
 from renderer.texture_cache import cache as texture_cache
-from renderer.textures import array_texture, float_texture, map_texels, raw_depth_sampler
+from renderer.textures import array_texture, raw_depth_sampler
 from renderer.uniforms import (
     ATTRIBUTE_TARGETS,
     COMPOSITE_UNIT,
     LAST_UNIT,
     SHADOW_DEPTH_UNIT,
     SHADOW_UNIT,
+    SOFT_TARGETS,
     SUBSTRATE_UNIT,
     detail_textures,
     environment_textures,
@@ -62,6 +64,8 @@ from renderer.uniforms import (
     set_floor,
     set_lights,
     set_roughness,
+    set_shadow_lookup,
+    set_soft_shadows,
     set_specular,
     set_view,
 )
@@ -77,109 +81,9 @@ def _shading_program(switches: dict[str, int]) -> Program:
     return shared_program("fullscreen.vert", "km_layers.frag", defines=dict(sorted(switches.items())))
 
 
-def _table_texels(x: np.ndarray, r0: np.ndarray, t: np.ndarray, groups: int) -> np.ndarray:
-    """Texels (2 groups + 1, n, 4) of one table in the layout documented in km_layers.frag."""
-    n, channels = r0.shape
-    texels = np.zeros((2 * groups + 1, n, 4))
-    padded = np.zeros((2, n, 4 * groups))
-    padded[0, :, :channels], padded[1, :, :channels] = r0, t
-    texels[: 2 * groups] = padded.reshape(2, n, groups, 4).transpose(0, 2, 1, 3).reshape(2 * groups, n, 4)
-    texels[2 * groups, :, 0] = x
-    return texels
-
-
 def _check_lights(lights: Sequence[Light]) -> None:
     if not 1 <= len(lights) <= MAX_LIGHTS:
         raise ValueError(f"between 1 and {MAX_LIGHTS} lights are needed, got {len(lights)}")
-
-
-def _channel_uniforms(stack: ChannelStack) -> dict:
-    """Validated per-draw data of a channel stack (bottom-up), as the shader wants it."""
-    if stack.n_layers > MAX_LAYERS:
-        raise ValueError(f"at most {MAX_LAYERS} layers can be composited, got {stack.n_layers}")
-    if len(stack.thicknesses) != stack.n_layers:
-        raise ValueError(
-            f"one thickness per layer is needed: {stack.n_layers} tables, {len(stack.thicknesses)} thicknesses"
-        )
-    # From here on bottom-up, the order of the composition: index 0 lies on the substrate.
-    tables, thicknesses = list(stack.tables)[::-1], list(stack.thicknesses)[::-1]
-    substrate = np.asarray(stack.substrate, dtype=float)
-    if substrate.ndim != 1 or not 1 <= substrate.size <= MAX_CHANNELS:
-        raise ValueError(f"substrate must have shape (C,) with 1 <= C <= {MAX_CHANNELS}, got {substrate.shape}")
-    channels = substrate.size
-    if not (np.all(np.isfinite(substrate)) and substrate.min() >= 0.0 and substrate.max() <= 1.0):
-        raise ValueError("substrate albedo must lie in [0, 1]")
-    to_rgb = stack.to_rgb
-    if to_rgb is None:
-        if channels != 3:
-            raise ValueError(f"{channels} channels need a ({channels}, 3) to_rgb matrix")
-        to_rgb = np.eye(3)
-    to_rgb = np.asarray(to_rgb, dtype=float)
-    if to_rgb.shape != (channels, 3):
-        raise ValueError(f"to_rgb must have shape ({channels}, 3), got {to_rgb.shape}")
-    arrays = [table.arrays() for table in tables]
-    for index, (_, r0, _) in enumerate(arrays):
-        if r0.shape[1] != channels:
-            raise ValueError(
-                f"layer {len(tables) - 1 - index} (top first): the table has {r0.shape[1]} channels, "
-                f"the substrate {channels}"
-            )
-    maps: list[np.ndarray | None] = []
-    uniform = np.zeros(MAX_LAYERS)
-    for index, thickness in enumerate(thicknesses):
-        value = np.asarray(thickness, dtype=float)
-        if value.ndim not in (0, 2) or value.size < 1 or not np.all(np.isfinite(value)):
-            raise ValueError(
-                f"layer {len(tables) - 1 - index} (top first): thickness must be a finite number or a 2-D map (mm)"
-            )
-        if value.ndim == 0:
-            uniform[index] = value
-            maps.append(None)
-        else:
-            maps.append(value)
-    substrate_map = None
-    if stack.substrate_map is not None:
-        weights, basis = (np.asarray(a, dtype=float) for a in stack.substrate_map)
-        if weights.ndim != 3 or weights.shape[2] != 3 or basis.shape != (3, channels):
-            raise ValueError(
-                f"substrate_map needs weights (rows, columns, 3) and a basis (3, {channels}); got {weights.shape} "
-                f"and {basis.shape}"
-            )
-        if not (np.all(np.isfinite(weights)) and np.all(np.isfinite(basis))):
-            raise ValueError("substrate_map must be finite")
-        substrate_map = (weights, basis)
-    return {
-        "arrays": arrays, "maps": maps, "uniform": uniform, "substrate": substrate, "to_rgb": to_rgb,
-        "substrate_map": substrate_map,
-    }  # fmt: skip
-
-
-def _composite_texels(stack: Precomposed) -> np.ndarray:
-    """Texels (3 + n_layers, rows, columns, 4) of a precomposed stack, layout of km_layers.frag; row 0 at v = 0."""
-    planes = [np.asarray(stack.reflectance, dtype=float), np.asarray(stack.over_black, dtype=float)]
-    attenuation = np.asarray(stack.attenuation, dtype=float)
-    if not 1 <= stack.n_layers <= MAX_LAYERS:
-        raise ValueError(f"a precomposed stack needs 1 to {MAX_LAYERS} layers, got {stack.n_layers}")
-    grid = planes[0].shape[:-1] if planes[0].ndim == 3 else ()
-    if (
-        planes[0].shape not in ((3,), (*grid, 3))
-        or planes[0].ndim not in (1, 3)
-        or planes[1].shape != planes[0].shape
-        or attenuation.shape != (stack.n_layers + 1, *planes[0].shape)
-    ):
-        raise ValueError(
-            "a precomposed stack needs reflectance and over_black (3,) with attenuation (n_layers + 1, 3), or "
-            "(rows, columns, 3) with attenuation (n_layers + 1, rows, columns, 3); got "
-            f"{planes[0].shape}, {planes[1].shape} and {attenuation.shape}"
-        )
-    # km_layers.frag: over the substrate, over black, the substrate's attenuation, then the films bottom-up.
-    layers = np.stack([*planes, attenuation[-1], *attenuation[-2::-1]])
-    if not np.all(np.isfinite(layers)):
-        raise ValueError("a precomposed stack must be finite")
-    layers = layers.reshape(len(layers), *(grid or (1, 1)), 3)
-    texels = np.zeros((*layers.shape[:3], 4), dtype=np.float32)
-    texels[..., :3] = layers[:, ::-1]  # row 0 of an image is the top (v = 1); texture row 0 is v = 0
-    return texels
 
 
 def _world_bounds(draws: Sequence[tuple[trimesh.Trimesh, np.ndarray]]) -> tuple[np.ndarray, float]:
@@ -227,8 +131,8 @@ class SurfacePass:
             raise ValueError(f"one specular entry per layer is needed: {stack.n_layers} layers, {len(lobes)} entries")
         self.lobes_bottom_up = [*lobes[::-1], *[None] * (MAX_LAYERS - len(lobes)), scene.substrate_lobe]
         self.stack = stack
-        self.channel = _channel_uniforms(stack) if isinstance(stack, ChannelStack) else None
-        self.composite_texels = None if self.channel is not None else _composite_texels(stack)
+        self.channel = channel_uniforms(stack) if isinstance(stack, ChannelStack) else None
+        self.composite_texels = None if self.channel is not None else composite_texels(stack)
         self.model = np.eye(4) if scene.model is None else np.asarray(scene.model, dtype=float)
         self.props = list(scene.props)
         for prop in self.props:
@@ -249,9 +153,11 @@ class SurfacePass:
         self.samples = scene.multisamples
         multisample.check_samples(self.samples)
         self.soft_shadows = any(light.cast_shadows and light.softness > 0.0 for light in self.lights)
+        self.soft_shadow_scale = scene.soft_shadow_scale
         shared = {
             **light_switches(self.lights),
             "SAMPLES": self.samples,
+            "SOFT_SHADOW_SCALE": self.soft_shadow_scale,
             "ENVIRONMENT": int(self.environment is not None),
             "ORTHOGRAPHIC": int(isinstance(self.camera, OrthographicCamera)),
         }
@@ -325,7 +231,14 @@ class SurfacePass:
             GL.glBindVertexArray(vao)
             try:
                 self._cover(attributes)
-                self._shade(attributes, split)
+                if self.soft_shadows and self.soft_shadow_scale > 1:
+                    scale = self.soft_shadow_scale
+                    with pooled(-(-width // scale), -(-height // scale), SOFT_TARGETS) as soft:
+                        self._soft_shadows(attributes, soft)
+                        target.bind()
+                        self._shade(attributes, split, soft.colours)
+                else:
+                    self._shade(attributes, split, None)
                 GL.glFinish()
             finally:
                 GL.glDisable(GL.GL_STENCIL_TEST)
@@ -374,38 +287,64 @@ class SurfacePass:
         GL.glStencilMask(0)
         GL.glColorMask(GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
 
-    def _shade(self, attributes: Framebuffer, split: bool) -> None:
-        """Shade each mesh over the pixels its stencil bit marks, adding (blending) into the bound target."""
+    def _soft_shadows(self, attributes: Framebuffer, soft: Framebuffer) -> None:
+        """The area lights' visibility at 1 / scale of the resolution into ``soft`` (light_visibility.frag)."""
+        switches = {name: self.product_switches[name] for name in ("SAMPLES", "SOFT_SHADOW_SCALE", "LIGHT_COUNT",
+                                                                   "POINT_LIGHTS", "SOFT_LIGHTS")}  # fmt: skip
+        program = shared_program("fullscreen.vert", "light_visibility.frag", defines=switches)
+        program.use()
+        set_attributes(program, attributes.colours, self.samples, read=(0, 1, 2))
+        self._bind_shadows(program)
+        GL.glDisable(GL.GL_STENCIL_TEST)
+        soft.bind()
+        GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+        GL.glEnable(GL.GL_STENCIL_TEST)
+
+    def _shade(self, attributes: Framebuffer, split: bool, soft: list[int] | None) -> None:
+        """Shade each mesh over the pixels its stencil bit marks, adding (blending) into the bound target; ``soft``:
+        the soft-shadow pass's targets, or None (soft shadows computed per pixel, or none)."""
         GL.glEnable(GL.GL_BLEND)
         GL.glBlendFunc(GL.GL_ONE, GL.GL_ONE)
         # The product (or the skin).
-        program = self._use(_shading_program({**self.product_switches, "SKIN_SPLIT": int(split)}), attributes)
+        program = self._use(_shading_program({**self.product_switches, "SKIN_SPLIT": int(split)}), attributes, soft)
         if self.channel is not None:
-            _bind_channel_stack(program, self.channel)
+            bind_channel_stack(program, self.channel)
         else:
-            _bind_precomposed(self.composite)
+            bind_precomposed(self.composite)
         set_specular(program, self.lobes_bottom_up)
         set_roughness(program, self.detail_textures)
         _shade_mesh(program, 0)
         # The props: bare Lambert substrates in RGB.
         for index, (prop, switches) in enumerate(zip(self.props, self.props_switches, strict=True), start=1):
-            program = self._use(_shading_program(switches), attributes)
+            program = self._use(_shading_program(switches), attributes, soft)
             set_specular(program, [])
-            _bind_channel_stack(program, _channel_uniforms(ChannelStack((), (), prop.albedo)))
+            bind_channel_stack(program, channel_uniforms(ChannelStack((), (), prop.albedo)))
             set_floor(program, prop.floor_occlusion, prop.floor_frame)
             _shade_mesh(program, index)
 
-    def _use(self, program: Program, attributes: Framebuffer) -> Program:
-        """Make ``program`` current with everything its meshes share: the attributes, view, lights, shadow maps,
-        environment and the texture units of the tables and maps."""
+    def _use(self, program: Program, attributes: Framebuffer, soft: list[int] | None) -> Program:
+        """Make ``program`` current with everything its meshes share: the attributes, the soft-shadow pass's targets
+        (if any), view, lights, shadow maps, environment and the texture units of the tables and maps."""
         program.use()
         set_attributes(program, attributes.colours, self.samples)
+        if soft is not None:
+            set_soft_shadows(program, soft)
         GL.glUniform2f(program.location("u_footprint"), *_footprint(self.camera, attributes.height))
-        set_lights(program, self.lights, self.shadow_matrices, self.shadow_ranges)
-        GL.glUniform1fv(
-            program.location("u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, self.shadow_texel_mm, np.float32)
-        )
+        set_lights(program, self.lights)
+        self._bind_shadows(program)
         set_view(program, self.camera)
+        GL.glActiveTexture(GL.GL_TEXTURE0)  # textures created later bind to unit 0, which the stack rebinds
+        for index in range(MAX_LAYERS):
+            GL.glUniform1i(program.location(f"u_table{index}"), index)
+            GL.glUniform1i(program.location(f"u_map{index}"), MAX_LAYERS + index)
+        GL.glUniform1i(program.location("u_composite"), COMPOSITE_UNIT)
+        GL.glUniform1i(program.location("u_substrate_map"), SUBSTRATE_UNIT)
+        set_environment(program, self.environment, self.environment_textures)
+        return program
+
+    def _bind_shadows(self, program: Program) -> None:
+        """The uniforms and textures of shaders/shadow_lookup.glsl: the lights and their shadow maps."""
+        set_shadow_lookup(program, self.lights, self.shadow_matrices, self.shadow_ranges, self.shadow_texel_mm)
         shadow_textures = iter(shadow_map.texture for shadow_map in self.shadow_maps)
         for index in range(MAX_LIGHTS):
             texture = next(shadow_textures) if self.casts[index] else 0
@@ -416,14 +355,7 @@ class SurfacePass:
                 GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
                 GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
             GL.glBindSampler(SHADOW_DEPTH_UNIT + index, self.raw_depth_sampler)
-        GL.glActiveTexture(GL.GL_TEXTURE0)  # textures created later bind to unit 0, which the stack rebinds
-        for index in range(MAX_LAYERS):
-            GL.glUniform1i(program.location(f"u_table{index}"), index)
-            GL.glUniform1i(program.location(f"u_map{index}"), MAX_LAYERS + index)
-        GL.glUniform1i(program.location("u_composite"), COMPOSITE_UNIT)
-        GL.glUniform1i(program.location("u_substrate_map"), SUBSTRATE_UNIT)
-        set_environment(program, self.environment, self.environment_textures)
-        return program
+        GL.glActiveTexture(GL.GL_TEXTURE0)
 
     def release(self) -> None:
         """Free the meshes, shadow maps and the sampler (the textures stay in :mod:`renderer.texture_cache`)."""
@@ -470,59 +402,3 @@ def _draw(program: Program, gpu_mesh: GpuMesh, model: np.ndarray) -> None:
     program.set_mat4("u_model", model)
     program.set_mat3("u_normal_matrix", np.linalg.inv(model[:3, :3]).T)
     gpu_mesh.draw()
-
-
-def _bind_precomposed(texture: int) -> None:
-    GL.glActiveTexture(GL.GL_TEXTURE0 + COMPOSITE_UNIT)
-    GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, texture)
-
-
-def _even_axis(x: np.ndarray) -> tuple[float, float]:
-    """(first sample, 1 / spacing) of a thickness axis (mm) whose samples lie within a quarter spacing of an even
-    spacing, so that the shader's segment from the spacing is off by at most one, which it corrects; else (0, 0), and
-    the shader searches the axis."""
-    if x.size < 2:
-        return 0.0, 0.0
-    spacing = (x[-1] - x[0]) / (x.size - 1)
-    if np.max(np.abs(x - (x[0] + spacing * np.arange(x.size)))) > 0.25 * spacing:
-        return 0.0, 0.0
-    return float(x[0]), float(1.0 / spacing)
-
-
-def _bind_channel_stack(program: Program, channel: dict) -> None:
-    """Set the uniforms and bind the textures of a channel stack."""
-    arrays, maps, substrate = channel["arrays"], channel["maps"], channel["substrate"]
-    channels = substrate.size
-    groups = -(-channels // 4)
-    substrate_groups = np.zeros(4 * (MAX_CHANNELS // 4))
-    substrate_groups[:channels] = substrate
-    to_rgb_rows = np.zeros((MAX_CHANNELS, 3))
-    to_rgb_rows[:channels] = channel["to_rgb"]
-    sample_count = np.ones(MAX_LAYERS, dtype=np.int32)
-    axes = np.zeros((MAX_LAYERS, 2))
-    for index, (x, _, _) in enumerate(arrays):
-        sample_count[index] = x.size
-        axes[index] = _even_axis(x)
-    GL.glUniform1iv(program.location("u_sample_count"), MAX_LAYERS, sample_count)
-    GL.glUniform1fv(program.location("u_thickness"), MAX_LAYERS, channel["uniform"].astype(np.float32))
-    GL.glUniform2fv(program.location("u_axis"), MAX_LAYERS, axes.astype(np.float32).ravel())
-    GL.glUniform4fv(program.location("u_substrate"), MAX_CHANNELS // 4, substrate_groups.astype(np.float32))
-    basis_groups = np.zeros((3, 4 * (MAX_CHANNELS // 4)))
-    if channel["substrate_map"] is not None:
-        basis_groups[:, :channels] = channel["substrate_map"][1]
-    GL.glUniform4fv(
-        program.location("u_substrate_basis"), 3 * (MAX_CHANNELS // 4), basis_groups.astype(np.float32).ravel()
-    )
-    GL.glUniform3fv(program.location("u_to_rgb"), MAX_CHANNELS, to_rgb_rows.astype(np.float32))
-    # Every texture is made first and bound afterwards: creating one binds it to the active unit, which would unbind
-    # what an earlier layer had put there.
-    bound = {}
-    for index, (x, r0, t) in enumerate(arrays):
-        bound[index] = float_texture(_table_texels(x, r0, t, groups), linear=False)
-        if maps[index] is not None:
-            bound[MAX_LAYERS + index] = float_texture(map_texels(maps[index]), linear=True)
-    if channel["substrate_map"] is not None:
-        bound[SUBSTRATE_UNIT] = float_texture(map_texels(channel["substrate_map"][0]), linear=True)
-    for unit in [*range(2 * MAX_LAYERS), SUBSTRATE_UNIT]:
-        GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, bound.get(unit, 0))

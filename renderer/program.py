@@ -29,14 +29,24 @@ def _declared_uniforms(source: str) -> set[str]:
     return set(re.findall(r"^\s*uniform\s+\w+\s+(\w+)", source, flags=re.MULTILINE))
 
 
+_INCLUDE = re.compile(r'^#include "([\w.]+)"[ \t]*$', flags=re.MULTILINE)
+
+
+def _source(path: Path) -> str:
+    """The GLSL source of ``path`` with each ``#include "NAME"`` line replaced by the file NAME beside it (once, not
+    nested): code that several shaders share."""
+    try:
+        text = path.read_text(encoding="utf-8")
+        return _INCLUDE.sub(lambda m: (path.parent / m.group(1)).read_text(encoding="utf-8"), text)
+    except OSError as error:
+        raise ShaderError(f"{path}: cannot read shader source: {error}") from error
+
+
 def _compile(path: Path, defines: Mapping[str, int]) -> int:
     stage = _STAGES.get(path.suffix)
     if stage is None:
         raise ShaderError(f"{path}: unknown shader stage (expected one of {', '.join(_STAGES)})")
-    try:
-        source = path.read_text(encoding="utf-8")
-    except OSError as error:
-        raise ShaderError(f"{path}: cannot read shader source: {error}") from error
+    source = _source(path)
     if defines:  # after the #version line, which must come first
         version, _, rest = source.partition("\n")
         source = "\n".join([version, *(f"#define {name} {value}" for name, value in defines.items()), rest])
@@ -70,7 +80,7 @@ class Program:
         try:
             for path in self.paths:
                 shaders.append(_compile(path, defines or {}))
-                self.declared |= _declared_uniforms(path.read_text(encoding="utf-8"))
+                self.declared |= _declared_uniforms(_source(path))
             self.handle = GL.glCreateProgram()
             for shader in shaders:
                 GL.glAttachShader(self.handle, shader)

@@ -251,6 +251,8 @@ class NormalMap:
             raise ValueError("a normal map's film thickness must be a number or a 2-D map >= 0 mm, fill_mm > 0")
 
 
+#: The block sizes (pixels a side) in which soft shadows may be computed (:attr:`Scene.soft_shadow_scale`).
+SOFT_SHADOW_SCALES = (1, 2)
 #: Most samples per pixel side (4: 16 samples a pixel).
 MAX_SUPERSAMPLING = 4
 #: Largest side (pixels) of a supersampled render: the GL framebuffers' limit here.
@@ -307,6 +309,10 @@ class Scene:
     multisamples
         Coverage samples per pixel of the surface pass (:mod:`renderer.multisample`: 1, 2 or 4): silhouettes get
         partial coverage as with supersampling, for about the shading cost of one sample a pixel. 1: none.
+    soft_shadow_scale
+        Pixels per side of the blocks in which area lights' soft shadows are computed (:data:`SOFT_SHADOW_SCALES`):
+        2 computes them at half the frame's resolution and upsamples them along each surface (about a quarter of
+        their cost, and smoother: their sampling noise is spread); 1 computes them at every shaded pixel.
     """
 
     mesh: trimesh.Trimesh
@@ -327,6 +333,13 @@ class Scene:
     substrate_roughness: np.ndarray | None = None
     supersampling: int = 1
     multisamples: int = 1
+    soft_shadow_scale: int = 2
+
+    def __post_init__(self) -> None:
+        if self.soft_shadow_scale not in SOFT_SHADOW_SCALES:
+            raise ValueError(
+                f"soft shadows are computed in blocks of 1 or 2 pixels a side, got {self.soft_shadow_scale!r}"
+            )
 
 
 def supersampled(render: Callable[[Scene], np.ndarray], scene: Scene) -> np.ndarray:

@@ -5,7 +5,7 @@ thickness, substrate roughness) and the surface attributes the shading reads.
 Texture units: tables 0-3, thickness maps 4-7, the precomposed array 8, shadow maps 9-12, the substrate map 13, the
 environment's irradiance 14, specular levels 15 and lobe table 16, the shadow maps' raw depths 17-20 (read through a
 sampler object that does not compare), the normal map 21, the films' total thickness 22, the substrate's roughness 23,
-a floor's occlusion grid 24, the surface attributes 25-28.
+a floor's occlusion grid 24, the surface attributes 25-28, the soft-shadow pass's targets 29-30.
 Every sampler has a unit of its own (GL forbids samplers of different types on one unit, even unused ones).
 """
 
@@ -31,9 +31,11 @@ SHADOW_DEPTH_UNIT = ENV_UNIT + 3
 DETAIL_UNIT = SHADOW_DEPTH_UNIT + MAX_LIGHTS
 FLOOR_UNIT = DETAIL_UNIT + 3
 ATTRIBUTE_UNIT = FLOOR_UNIT + 1
-#: Targets of the surface attributes (surface_attributes.frag).
+#: Targets of the surface attributes (surface_attributes.frag) and of the soft-shadow pass (light_visibility.frag).
 ATTRIBUTE_TARGETS = 4
-LAST_UNIT = ATTRIBUTE_UNIT + ATTRIBUTE_TARGETS - 1
+SOFT_TARGETS = 2
+SOFT_UNIT = ATTRIBUTE_UNIT + ATTRIBUTE_TARGETS
+LAST_UNIT = SOFT_UNIT + SOFT_TARGETS - 1
 
 
 def environment_textures(environment) -> list[int]:
@@ -108,24 +110,33 @@ def set_roughness(program: Program, textures: Sequence[int]) -> None:
     GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
-def set_lights(program: Program, lights: Sequence[Light], shadow_matrices: np.ndarray, ranges: np.ndarray) -> None:
-    """The lights' uniforms (their kinds, shadows and softness are compiled in: :func:`light_switches`)."""
-    vectors = np.zeros((MAX_LIGHTS, 3))
+def set_lights(program: Program, lights: Sequence[Light]) -> None:
+    """The shading program's lights' radiance and a point light's reference distance."""
     radiance = np.zeros((MAX_LIGHTS, 3))
     reference = np.ones(MAX_LIGHTS)
-    softness = np.zeros(MAX_LIGHTS)
     for index, light in enumerate(lights):
         radiance[index] = light.radiance
-        softness[index] = light.softness
         if isinstance(light, PointLight):
-            vectors[index], reference[index] = light.position, light.reference_distance_mm
-        else:
-            vectors[index] = light.to_light()
-    GL.glUniform3fv(program.location("u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
+            reference[index] = light.reference_distance_mm
     GL.glUniform3fv(program.location("u_light_radiance"), MAX_LIGHTS, radiance.astype(np.float32))
     GL.glUniform1fv(program.location("u_light_reference"), MAX_LIGHTS, reference.astype(np.float32))
+
+
+def set_shadow_lookup(
+    program: Program, lights: Sequence[Light], shadow_matrices: np.ndarray, ranges: np.ndarray, texel_mm: float
+) -> None:
+    """The uniforms of ``shaders/shadow_lookup.glsl``: where the lights are, their shadow maps' frusta (``ranges``:
+    near and far, mm) and matrices, a texel's size (mm) and the area lights' sizes (their kinds are compiled in:
+    :func:`light_switches`)."""
+    vectors = np.zeros((MAX_LIGHTS, 3))
+    softness = np.zeros(MAX_LIGHTS)
+    for index, light in enumerate(lights):
+        softness[index] = light.softness
+        vectors[index] = light.position if isinstance(light, PointLight) else light.to_light()
+    GL.glUniform3fv(program.location("u_light_vector"), MAX_LIGHTS, vectors.astype(np.float32))
     GL.glUniform1fv(program.location("u_light_softness"), MAX_LIGHTS, softness.astype(np.float32))
     GL.glUniform2fv(program.location("u_shadow_range"), MAX_LIGHTS, ranges.astype(np.float32))
+    GL.glUniform1fv(program.location("u_shadow_texel"), MAX_LIGHTS, np.full(MAX_LIGHTS, texel_mm, np.float32))
     GL.glUniformMatrix4fv(
         program.location("u_shadow_matrix"), MAX_LIGHTS, GL.GL_TRUE, shadow_matrices.astype(np.float32)
     )
@@ -195,4 +206,13 @@ def set_attributes(program: Program, textures: Sequence[int], samples: int, read
             GL.glUniform1i(program.location(f"u_attributes{index}"), ATTRIBUTE_UNIT + index)
         GL.glActiveTexture(GL.GL_TEXTURE0 + ATTRIBUTE_UNIT + index)
         GL.glBindTexture(kind, texture)
+    GL.glActiveTexture(GL.GL_TEXTURE0)
+
+
+def set_soft_shadows(program: Program, textures: Sequence[int]) -> None:
+    """The soft-shadow pass's targets (units SOFT_UNIT ..) for the shading program to upsample."""
+    for index, (name, texture) in enumerate(zip(("u_soft_visibility", "u_soft_plane"), textures, strict=True)):
+        GL.glUniform1i(program.location(name), SOFT_UNIT + index)
+        GL.glActiveTexture(GL.GL_TEXTURE0 + SOFT_UNIT + index)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
     GL.glActiveTexture(GL.GL_TEXTURE0)

@@ -392,10 +392,11 @@ def disc_light_profile_width(diameter: float) -> float:
     return diameter / 2.0 * (optimize.brentq(lit, -1.0, 1.0, (0.9,)) - optimize.brentq(lit, -1.0, 1.0, (0.1,)))
 
 
-def edge_profile(angle_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def edge_profile(angle_deg: float, scale: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The lit fraction across the shadow's edge on a floor (albedo 0.8) under a half-plane card 10 mm above it (its
-    edge at x = 0), light straight down; the camera looks down from just below the card (its near plane clips the card
-    away). Returns x (mm) of the columns, the rows' mean lit fraction per column, and the image."""
+    edge at x = 0), light straight down, soft shadows computed in blocks of ``scale`` pixels; the camera looks down
+    from just below the card (its near plane clips the card away). Returns x (mm) of the columns, the rows' mean lit
+    fraction per column, and the image."""
     width, height, half, gap = 128, 16, 16.0, 10.0
     camera = OrthographicCamera(half_height=half * height / width, eye=(0.0, 0.0, gap - 0.5), near=1.0, far=50.0)
     model = np.eye(4)
@@ -411,6 +412,7 @@ def edge_profile(angle_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             resolution=(width, height),
             props=[card],
             shadow_map_size=512,
+            soft_shadow_scale=scale,
         )
     )
     x = -half + (np.arange(width) + 0.5) * (2.0 * half / width)
@@ -423,15 +425,17 @@ def transition(x: np.ndarray, lit: np.ndarray) -> float:
     return float(np.interp(0.9, envelope, x) - np.interp(0.1, envelope, x))
 
 
-def test_an_area_light_softens_the_shadow_edge_by_its_penumbra():
+@pytest.mark.parametrize("scale", [1, 2])
+def test_an_area_light_softens_the_shadow_edge_by_its_penumbra(scale):
     """Hard light: an edge within 3 pixels. A light of angular diameter theta: the lit fraction of its disc, of
     diameter D = g 2 tan(theta / 2) seen from the floor at the card's height, as the 10-90 % width of the edge;
-    well beyond D / 2 from the edge the floor is in full light (as under the hard light) or full shadow."""
+    well beyond D / 2 from the edge the floor is in full light (as under the hard light) or full shadow; so whether
+    the soft shadows are computed at every pixel or at half the resolution."""
     x, hard, hard_image = edge_profile(0.0)
     assert transition(x, hard) <= 3.0 * (x[1] - x[0])
     measured, expected = [], []
     for angle in (10.0, 20.0, 30.0):
-        x, soft, soft_image = edge_profile(angle)
+        x, soft, soft_image = edge_profile(angle, scale)
         diameter = 10.0 * 2.0 * np.tan(np.radians(angle) / 2.0)
         far = np.abs(x) > diameter + 1.0  # well beyond the penumbra's D / 2 each side of the edge
         np.testing.assert_array_equal(soft_image[:, far & (x > 0)], hard_image[:, far & (x > 0)])
@@ -440,6 +444,40 @@ def test_an_area_light_softens_the_shadow_edge_by_its_penumbra():
         expected.append(disc_light_profile_width(diameter))
     assert measured[0] < measured[1] < measured[2]
     np.testing.assert_allclose(measured, expected, rtol=0.35)
+
+
+def test_soft_shadows_at_half_resolution_do_not_leak_across_a_silhouette():
+    """One mesh of two parallel cards 6 mm apart, the light (20 degrees wide) from the camera's side: the front card,
+    turned about the view axis, shadows the back one right around its own outline, while nothing shadows the front
+    card. Upsampled from half resolution, the front card's pixels stay exactly lit up to its silhouette (no shadow of
+    the back card's texels leaks onto it) while the back card's pixels beside it are darker."""
+    front = meshes.card(12.0, 8.0)
+    front.apply_transform(trimesh.transformations.rotation_matrix(np.radians(23.0), (0.0, 0.0, 1.0)))
+    front.apply_transform(trimesh.transformations.translation_matrix((0.0, 0.0, 6.0)))
+    back = meshes.card(30.0, 30.0)
+    vertices = np.vstack([front.vertices, back.vertices])
+    faces = np.vstack([front.faces, back.faces + len(front.vertices)])
+    normals = np.vstack([front.vertex_normals, back.vertex_normals])
+    uv = trimesh.visual.TextureVisuals(uv=np.vstack([front.visual.uv, back.visual.uv]))
+    mesh = trimesh.Trimesh(vertices, faces, vertex_normals=normals, visual=uv, process=False)
+    light = DirectionalLight((0.0, 0.0, -1.0), (1.0, 1.0, 1.0), angle_deg=20.0)
+    image = render_layers(Scene(mesh=mesh, stack=ChannelStack((), (), (0.5, 0.5, 0.5)),
+                                camera=OrthographicCamera(half_height=10.0, eye=(0.0, 0.0, 50.0)), lights=[light],
+                                resolution=(80, 80), soft_shadow_scale=2))[..., 0]  # fmt: skip
+    camera_x = (np.arange(80) + 0.5) / 80 * 20.0 - 10.0
+    x, y = np.meshgrid(camera_x, -camera_x)
+    turn = np.radians(-23.0)
+    u, v = x * np.cos(turn) - y * np.sin(turn), x * np.sin(turn) + y * np.cos(turn)  # in the front card's frame
+    on_front = (np.abs(u) < 6.0 - 0.2) & (np.abs(v) < 4.0 - 0.2)  # pixels wholly on the front card
+    beside = ~on_front & (np.abs(u) < 6.0 + 0.6) & (np.abs(v) < 4.0 + 0.6) & ((np.abs(u) > 6.2) | (np.abs(v) > 4.2))
+    np.testing.assert_array_equal(image[on_front], 0.5)  # lit, exactly: the light sees all of the front card
+    assert image[beside].mean() < 0.45 and image[beside].min() < 0.4  # in the front card's penumbra
+
+
+@pytest.mark.parametrize("scale", [0, 3, 1.5])
+def test_soft_shadows_are_computed_per_pixel_or_at_half_resolution_only(scale):
+    with pytest.raises(ValueError, match="blocks of 1 or 2 pixels"):
+        scene(soft_shadow_scale=scale)
 
 
 # 8. Backdrops.
@@ -672,8 +710,10 @@ def test_without_an_environment_the_frame_is_as_before_and_with_one_the_unlit_si
 
 
 def test_the_soft_shadow_code_is_compiled_only_into_the_program_that_needs_it():
-    """``defines`` reach the shader: only a program with a soft light (SOFT_LIGHTS) reads the shadow maps' raw depths
-    (the PCSS code costs on llvmpipe even where no pixel takes it, so hard lights get a program without it)."""
+    """``defines`` reach the shaders: the percentage-closer soft shadows (the only code that reads the shadow maps'
+    raw depths and frusta) are compiled into the shading program where soft shadows are computed per pixel, into the
+    soft-shadow pass where they are computed at half resolution, and nowhere without an area light (the PCSS code
+    costs on llvmpipe even where no pixel takes it)."""
     from renderer import context
     from renderer.context import GL
     from renderer.program import Program
@@ -682,13 +722,19 @@ def test_the_soft_shadow_code_is_compiled_only_into_the_program_that_needs_it():
     off = ("PRECOMPOSED", "SUBSTRATE_MAP", "ROUGHNESS_MAP", "ENVIRONMENT", "FLOOR", "ORTHOGRAPHIC", "SKIN_SPLIT",
            "THICKNESS_MAPS", "LOBES", "POINT_LIGHTS")  # fmt: skip
     switches = {**counts, **dict.fromkeys(off, 0)}
+    found = {}
     with context.lock:
         context.make_current(8, 8)
-        names = ("fullscreen.vert", "km_layers.frag")
-        programs = {soft: Program(*names, defines={"SOFT_LIGHTS": soft, **switches}) for soft in (0, 1)}
-        try:
-            found = {soft: GL.glGetUniformLocation(p.handle, "u_shadow_range") >= 0 for soft, p in programs.items()}
-        finally:
-            for p in programs.values():
-                p.release()
-    assert found == {0: False, 1: True}
+        for shader in ("km_layers.frag", "light_visibility.frag"):
+            for soft, scale in ((0, 1), (1, 1), (1, 2)):
+                program = Program("fullscreen.vert", shader,
+                                  defines={**switches, "SOFT_LIGHTS": soft, "SOFT_SHADOW_SCALE": scale})  # fmt: skip
+                try:
+                    found[shader, soft, scale] = GL.glGetUniformLocation(program.handle, "u_shadow_range") >= 0
+                finally:
+                    program.release()
+    assert found == {
+        ("km_layers.frag", 0, 1): False, ("km_layers.frag", 1, 1): True, ("km_layers.frag", 1, 2): False,
+        ("light_visibility.frag", 0, 1): False, ("light_visibility.frag", 1, 1): True,
+        ("light_visibility.frag", 1, 2): True,
+    }  # fmt: skip

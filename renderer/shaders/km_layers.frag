@@ -42,8 +42,8 @@
 // keep the interpolated normal.
 //
 // Radiance. With E_l the light's value for a white Lambert surface facing it (the unit of the whole renderer) and
-// v_l its shadow visibility (3 x 3 PCF taps of a 2 x 2 filtered shadow map, looked up 0.5 to 2 texels off the
-// surface along its normal; 0 = shadowed, 1 = lit):
+// v_l its shadow visibility (0 = shadowed, 1 = lit; shadow_lookup.glsl: a hard light's 3 x 3 PCF taps, an area
+// light's percentage-closer soft shadow, computed here or upsampled from the soft-shadow pass, light_visibility.frag):
 //   colour = sum over lights of E_l v_l max(N.L, 0) (R_rgb + pi sum_i A_i f_spec,i)
 // (a white Lambert surface renders as E cos(theta), so its BRDF 1/pi is scaled by pi; the lobes follow suit).
 //
@@ -79,7 +79,8 @@
 // direction is u_view_vector everywhere), SKIN_SPLIT (the skin pass's outputs: this surface is skin); bit masks (bit i
 // for film or light i): THICKNESS_MAPS (the film's thickness from its map, else u_thickness), LOBES (the film has a
 // lobe; bit MAX_LAYERS: the substrate), POINT_LIGHTS (else directional), SHADOW_LIGHTS (the light's shadow map is
-// looked up), SOFT_LIGHTS (an area light: soft shadows).
+// looked up), SOFT_LIGHTS (an area light: soft shadows); SOFT_SHADOW_SCALE (soft shadows computed here, 1, or by the
+// soft-shadow pass in blocks of that many pixels a side, 2).
 #define BIT(mask, i) (((mask) >> (i)) & 1)
 #define MAX_LAYERS 4
 #define MAX_GROUPS 8
@@ -132,21 +133,8 @@ uniform sampler2DArray u_composite;          // precomposed layers (layout above
 uniform float u_roughness[MAX_LAYERS + 1];   // Beckmann m (RMS microfacet slope), > 0
 uniform float u_f0[MAX_LAYERS + 1];          // Fresnel reflectance at normal incidence
 
-uniform vec3 u_light_vector[MAX_LIGHTS];     // directional: unit vector towards the light; point: position (mm)
 uniform vec3 u_light_radiance[MAX_LIGHTS];   // E (at the reference distance for a point light)
 uniform float u_light_reference[MAX_LIGHTS]; // point light: distance (mm) at which it delivers E
-uniform mat4 u_shadow_matrix[MAX_LIGHTS];    // world -> shadow map texture coordinates and depth, [0, 1]^3
-uniform float u_shadow_texel[MAX_LIGHTS];    // size of a shadow map texel at the scene's centre, mm
-uniform sampler2DShadow u_shadow0;
-uniform sampler2DShadow u_shadow1;
-uniform sampler2DShadow u_shadow2;
-uniform sampler2DShadow u_shadow3;
-uniform float u_light_softness[MAX_LIGHTS];  // an area light's size: directional: 2 tan(angle / 2); point: diameter, mm
-uniform vec2 u_shadow_range[MAX_LIGHTS];     // near and far distance (mm) of the light's shadow frustum
-uniform sampler2D u_shadow_depth0;           // the shadow maps' raw depths (no comparison), for the blocker search
-uniform sampler2D u_shadow_depth1;
-uniform sampler2D u_shadow_depth2;
-uniform sampler2D u_shadow_depth3;
 
 uniform sampler2D u_env_irradiance;          // E / pi over directions (equirectangular, u wraps)
 uniform sampler2DArray u_env_specular;       // prefiltered radiance per roughness level (equirectangular)
@@ -166,6 +154,13 @@ uniform sampler2D u_roughness_map;           // its Beckmann m (red)
 uniform float u_lobe_cover_mm;               // a film's lobe is weighted by clamp(thickness / this, 0, 1)
 
 uniform vec3 u_view_vector;                  // ORTHOGRAPHIC: unit vector towards the camera; else: eye (mm)
+
+#include "shadow_lookup.glsl"
+
+#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE > 1
+uniform sampler2D u_soft_visibility;         // the soft lights' visibility (light_visibility.frag), a channel each
+uniform sampler2D u_soft_plane;              // the surface's plane there: unit normal n, n.p (mm); 0 where none
+#endif
 
 layout(location = 0) out vec4 f_colour;
 layout(location = 1) out vec4 f_skin;
@@ -287,95 +282,55 @@ void stack_optics(float thickness[MAX_LAYERS], out vec3 reflectance, out vec3 ov
     }
 }
 
-float shadow_compare(int light, vec3 tap) {
-    if (light == 0) return texture(u_shadow0, tap);
-    if (light == 1) return texture(u_shadow1, tap);
-    if (light == 2) return texture(u_shadow2, tap);
-    return texture(u_shadow3, tap);
+#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE > 1
+// The soft lights' visibility at the surface point `position` (unit normal `normal`, view depth `depth`) in window
+// pixel `pixel`, from the soft-shadow pass at 1 / SOFT_SHADOW_SCALE of the resolution (light_visibility.frag): the
+// 3 x 3 texels around the pixel's centre, weighted by a tent 1.5 texels wide each way (which also smooths the pass's
+// sampling noise), each only where its point lies on this surface (the point here within 2 texels' footprint of the
+// texel's plane, the normals within 25 degrees), so that shadows do not leak across silhouettes and creases; -1
+// where no texel lies on the surface.
+vec4 upsampled_visibility(ivec2 pixel, vec3 position, vec3 normal, float depth) {
+    vec2 c = (vec2(pixel) + 0.5) / float(SOFT_SHADOW_SCALE) - 0.5;
+    ivec2 nearest = ivec2(floor(c + 0.5));
+    ivec2 last = textureSize(u_soft_visibility, 0) - 1;
+    float reach = 2.0 * float(SOFT_SHADOW_SCALE) * (u_footprint.x + u_footprint.y * depth);
+    vec4 sum = vec4(0.0);
+    float total = 0.0;
+    for (int k = 0; k < 9; ++k) {
+        ivec2 texel = nearest + ivec2(k % 3 - 1, k / 3 - 1);
+        vec2 tent = max(1.0 - abs(vec2(texel) - c) / 1.5, 0.0);
+        texel = clamp(texel, ivec2(0), last);
+        vec4 plane = texelFetch(u_soft_plane, texel, 0);
+        if (dot(plane.xyz, normal) >= 0.9 && abs(dot(plane.xyz, position) - plane.w) <= reach) {
+            float w = tent.x * tent.y + 1e-3;
+            sum += w * texelFetch(u_soft_visibility, texel, 0);
+            total += w;
+        }
+    }
+    return total > 0.0 ? sum / total : vec4(-1.0);
 }
+#endif
 
-float shadow_depth(int light, vec2 at) {
-    if (light == 0) return textureLod(u_shadow_depth0, at, 0.0).r;
-    if (light == 1) return textureLod(u_shadow_depth1, at, 0.0).r;
-    if (light == 2) return textureLod(u_shadow_depth2, at, 0.0).r;
-    return textureLod(u_shadow_depth3, at, 0.0).r;
-}
-
-// Distance (mm) from the light along its axis of a shadow-map depth: linear for a directional light's orthographic
-// frustum, s = f n / (f - depth (f - n)) for a point light's perspective one.
-float light_distance(int light, float depth) {
-    vec2 r = u_shadow_range[light];
-    if (BIT(POINT_LIGHTS, light) == 1) return r.x * r.y / (r.y - depth * (r.y - r.x));
-    return r.x + depth * (r.y - r.x);
-}
-
-// Penumbra width (mm) of a light at a receiver `receiver` mm from it behind an occluder `blocker` mm from it.
-float penumbra(int light, float receiver, float blocker) {
-    float gap = max(receiver - blocker, 0.0);
-    return u_light_softness[light] * (BIT(POINT_LIGHTS, light) == 1 ? gap / max(blocker, 1e-6) : gap);
-}
-
-const vec2 DISC[16] = vec2[16](
-    vec2(-0.9465, -0.1484), vec2(-0.7431, 0.5353), vec2(-0.5863, -0.5879), vec2(-0.3935, 0.1025),
-    vec2(-0.2428, 0.8663), vec2(-0.1672, -0.9260), vec2(-0.0793, -0.3570), vec2(0.0626, 0.4394),
-    vec2(0.1790, -0.0364), vec2(0.2735, 0.9045), vec2(0.3360, -0.6447), vec2(0.4768, 0.2973),
-    vec2(0.6063, -0.2457), vec2(0.7140, 0.6440), vec2(0.8413, -0.5226), vec2(0.9620, 0.1130));
-
-// Visibility of a light at `position`: 3 x 3 PCF taps (each a 2 x 2 filtered lookup) for a hard light; for an area
-// light, percentage-closer soft shadows: 16 taps of a blocker search over the region the light can be seen through
-// (a disc as wide as its penumbra for an occluder at the frustum's near end, radius 1 to 64 texels), their mean
-// distance d_o, then 16 PCF taps over a disc as wide as the penumbra the light casts from there (radius 1 to 64
-// texels), the disc turned per pixel by interleaved gradient noise (Jimenez 2014), which supersampling averages out.
-float shadow_visibility(int light, vec3 position) {
-    // (if/else blocks, no early returns: llvmpipe skips a block no pixel takes but runs the code after a return; and
-    // the PCSS code, compiled only into a program with SOFT_LIGHTS (renderer.layers), costs even where no pixel takes it)
+// Visibility of a light (0 = shadowed, 1 = lit) at the shadow lookup point `point` (shadow_lookup.glsl): 1 for a
+// light without shadows; an area light's from the soft-shadow pass (`upsampled`, where it is >= 0; SOFT_SHADOW_SCALE
+// 1: computed here) or, where that pass has no point on this surface nearby (a sliver of a surface), one 2 x 2
+// filtered lookup.
+float light_visibility(int light, vec3 point, float upsampled) {
     float visibility = 1.0;
     if (BIT(SHADOW_LIGHTS, light) == 1) {
-        vec4 coordinates = u_shadow_matrix[light] * vec4(position, 1.0);
-        vec3 p = coordinates.xyz / coordinates.w;
-        vec2 texel;
-        if (light == 0) texel = 1.0 / vec2(textureSize(u_shadow0, 0));
-        else if (light == 1) texel = 1.0 / vec2(textureSize(u_shadow1, 0));
-        else if (light == 2) texel = 1.0 / vec2(textureSize(u_shadow2, 0));
-        else texel = 1.0 / vec2(textureSize(u_shadow3, 0));
-#if SOFT_LIGHTS != 0
-        if (BIT(SOFT_LIGHTS, light) == 0) {
+        vec3 p = shadow_coordinates(light, point);
+        vec2 texel = shadow_texel(light);
+#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE == 1
+        visibility = BIT(SOFT_LIGHTS, light) == 1 ? soft_visibility(light, p, texel, gl_FragCoord.xy)
+                                                  : hard_visibility(light, p, texel);
+#elif SOFT_LIGHTS != 0
+        if (BIT(SOFT_LIGHTS, light) == 1) {  // (a single filtered tap where the pass has no point: rare, and cheap)
+            visibility = upsampled >= 0.0 ? upsampled : shadow_compare(light, p);
+        } else {
+            visibility = hard_visibility(light, p, texel);
+        }
 #else
-        {
-#endif
-            float lit = 0.0;
-            for (int dy = -1; dy <= 1; ++dy) {
-                for (int dx = -1; dx <= 1; ++dx) lit += shadow_compare(light, vec3(p.xy + vec2(dx, dy) * texel, p.z));
-            }
-            visibility = lit / 9.0;
-        }
-#if SOFT_LIGHTS != 0
-        else {
-            float angle = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
-            mat2 turn = mat2(cos(angle), sin(angle), -sin(angle), cos(angle));
-            float receiver = light_distance(light, p.z);
-            // disc radii (texels): half the penumbra's width
-            float reach = 0.5 * penumbra(light, receiver, u_shadow_range[light].x) / u_shadow_texel[light];
-            float search = clamp(reach, 1.0, 64.0);
-            float blockers = 0.0;
-            int found = 0;
-            for (int i = 0; i < 16; ++i) {
-                float depth = shadow_depth(light, p.xy + turn * DISC[i] * search * texel);
-                if (depth < p.z) {
-                    blockers += light_distance(light, depth);
-                    ++found;
-                }
-            }
-            if (found > 0) {
-                float spread = 0.5 * penumbra(light, receiver, blockers / float(found)) / u_shadow_texel[light];
-                float width = clamp(spread, 1.0, 64.0);
-                float lit = 0.0;
-                for (int i = 0; i < 16; ++i) {
-                    lit += shadow_compare(light, vec3(p.xy + turn * DISC[i] * width * texel, p.z));
-                }
-                visibility = lit / 16.0;
-            }
-        }
+        visibility = hard_visibility(light, p, texel);
 #endif
     }
     return visibility;
@@ -476,6 +431,10 @@ void shade(out vec4 out_colour, out vec4 out_skin, out vec4 out_depth) {
     vec3 surface = split ? over_black : reflectance;
     vec3 colour = vec3(0.0);
     vec3 skin = vec3(0.0);
+    vec4 soft = vec4(-1.0);
+#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE > 1
+    soft = upsampled_visibility(ivec2(gl_FragCoord.xy), g_position, geometric, g_view_depth);
+#endif
     for (int light = 0; light < LIGHT_COUNT; ++light) {
         vec3 l;
         vec3 e = u_light_radiance[light];
@@ -495,11 +454,8 @@ void shade(out vec4 out_colour, out vec4 out_skin, out vec4 out_depth) {
                 specular += attenuation[k] * kelemen(k, m[k], n, l, v);
             }
         }
-        // Looked up a little off the surface, along the normal (more at grazing light), so that a curved surface
-        // does not shadow itself between the map's texels ("acne").
-        float cos_geometric = max(dot(geometric, l), 0.0);
-        vec3 lookup = g_position + geometric * u_shadow_texel[light] * (0.5 + 1.5 * (1.0 - cos_geometric));
-        vec3 incident = e * shadow_visibility(light, lookup) * cos_theta;
+        vec3 point = shadow_point(light, g_position, geometric, l);
+        vec3 incident = e * light_visibility(light, point, soft[light]) * cos_theta;
         colour += incident * (surface + PI * specular);
         skin += incident * (reflectance - over_black);
     }

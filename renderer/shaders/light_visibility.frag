@@ -1,0 +1,62 @@
+#version 400 core
+// The soft-shadow pass of renderer.layers: the area lights' visibility at 1 / SOFT_SHADOW_SCALE of the frame's
+// resolution, drawn over the whole of a target that size (fullscreen.vert), between the surface attributes and the
+// shading pass (km_layers.frag), which upsamples it.
+//
+// Each texel covers a block of SOFT_SHADOW_SCALE x SOFT_SHADOW_SCALE pixels; its point is the first of them (row by
+// row from the bottom left) whose first sample shows a surface (surface_attributes.frag). There, for each area light,
+// the percentage-closer soft shadow of shadow_lookup.glsl (the 32 taps that make soft shadows the costliest part of
+// the shading), the discs turned by this texel's noise. Outputs: the visibility of light i in channel i (1 where a
+// light is not an area light or no surface shows), and the plane of the surface there (its interpolated unit normal
+// n and n.p, p the point in mm; 0 where no surface shows), for the shading pass to tell whether a texel lies on the
+// surface it shades.
+//
+// Compile-time constants (renderer.layers): SAMPLES, SOFT_SHADOW_SCALE, LIGHT_COUNT, POINT_LIGHTS, SOFT_LIGHTS.
+
+#define MAX_LIGHTS 4
+#define BIT(mask, i) (((mask) >> (i)) & 1)
+
+#if SAMPLES > 1
+#define ATTRIBUTES sampler2DMS
+#define ATTRIBUTE_SIZE(a) textureSize(a)
+#else
+#define ATTRIBUTES sampler2D
+#define ATTRIBUTE_SIZE(a) textureSize(a, 0)
+#endif
+uniform ATTRIBUTES u_attributes0;            // position (mm), view depth
+uniform ATTRIBUTES u_attributes1;            // interpolated normal, occlusion
+uniform ATTRIBUTES u_attributes2;            // shading normal, the mesh's index (-1: nothing drawn)
+
+#include "shadow_lookup.glsl"
+
+layout(location = 0) out vec4 f_visibility;
+layout(location = 1) out vec4 f_plane;
+
+void main() {
+    ivec2 size = ATTRIBUTE_SIZE(u_attributes2);
+    ivec2 corner = ivec2(gl_FragCoord.xy) * SOFT_SHADOW_SCALE;
+    ivec2 pixel = corner;
+    float object = -1.0;
+    for (int k = SOFT_SHADOW_SCALE * SOFT_SHADOW_SCALE - 1; k >= 0; --k) {  // the first one showing a surface wins
+        ivec2 candidate = min(corner + ivec2(k % SOFT_SHADOW_SCALE, k / SOFT_SHADOW_SCALE), size - 1);
+        float index = texelFetch(u_attributes2, candidate, 0).w;
+        if (index >= 0.0) {
+            pixel = candidate;
+            object = index;
+        }
+    }
+    vec3 position = texelFetch(u_attributes0, pixel, 0).xyz;
+    vec3 normal = normalize(texelFetch(u_attributes1, pixel, 0).xyz);
+    vec4 visibility = vec4(1.0);
+#if SOFT_LIGHTS != 0
+    for (int light = 0; light < LIGHT_COUNT; ++light) {
+        if (BIT(SOFT_LIGHTS, light) == 1) {
+            vec3 point = shadow_point(light, position, normal, towards_light(light, position));
+            visibility[light] = soft_visibility(light, shadow_coordinates(light, point), shadow_texel(light),
+                                                gl_FragCoord.xy);
+        }
+    }
+#endif
+    f_visibility = object >= 0.0 ? visibility : vec4(1.0);
+    f_plane = object >= 0.0 ? vec4(normal, dot(normal, position)) : vec4(0.0);
+}
