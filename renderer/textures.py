@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.context import GL
-from renderer.texture_cache import cache
+from renderer.texture_cache import Remembered, cache
 
 #: Internal and client formats of a float texture of 1 to 4 channels (a shader reads missing channels as 0, alpha 1).
 _FORMATS = {
@@ -69,10 +69,20 @@ def _upload_array(texels: np.ndarray, wrap_s: bool) -> int:
 def map_texels(values: np.ndarray) -> np.ndarray:
     """float32 texels (rows, columns, C) of a (rows, columns) map (C = 1) or a (rows, columns, C <= 4) one, flipped so
     that row 0 (v = 1) is at t = 1: as many channels as the map has, so that a one-channel map is hashed, uploaded and
-    sampled as a quarter of an RGBA one."""
+    sampled as a quarter of an RGBA one. Made once for a frozen map (:func:`renderer.texture_cache.frozen`), and then
+    frozen too."""
+    return _texels.get(values, _flipped)
+
+
+def _flipped(values: np.ndarray) -> np.ndarray:
     values = np.asarray(values, dtype=np.float32)
     values = values[..., None] if values.ndim == 2 else values
-    return np.ascontiguousarray(values[::-1])
+    texels = np.ascontiguousarray(values[::-1])
+    texels.setflags(write=False)
+    return texels
+
+
+_texels = Remembered()
 
 
 def raw_depth_sampler() -> int:

@@ -225,3 +225,36 @@ def test_a_float_texture_of_five_channels_is_refused():
         context.make_current(8, 8)
         with pytest.raises(ValueError, match="1 to 4 channels"):
             float_texture(np.zeros((2, 2, 5), np.float32), linear=True)
+
+
+def test_a_frozen_map_is_hashed_once_and_a_changed_one_gets_a_texture_of_its_own(monkeypatch):
+    """The texture cache finds textures by content: a map changed in place (writeable) gets a new texture holding
+    the new values; a frozen map (read-only, as kmpipe's scenes hold theirs) is flipped and hashed once however often
+    it is asked for, and gives the same texture each time."""
+    from renderer import texture_cache
+    from renderer.context import GL
+    from renderer.textures import float_texture, map_texels
+
+    hashed = []
+    digest = texture_cache._digest
+    monkeypatch.setattr(texture_cache, "_digest", lambda texels: hashed.append(texels.shape) or digest(texels))
+    rng = np.random.default_rng(7)
+    with context.lock:
+        context.make_current(8, 8)
+        live = rng.random((6, 9))
+        first = float_texture(map_texels(live), linear=True)
+        live[2, 3] += 1.0
+        second = float_texture(map_texels(live), linear=True)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, second)
+        stored = np.frombuffer(GL.glGetTexImage(GL.GL_TEXTURE_2D, 0, GL.GL_RED, GL.GL_FLOAT), np.float32)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+        assert second != first and stored.reshape(6, 9)[::-1][2, 3] == np.float32(live[2, 3])
+        assert len(hashed) == 2
+        still = rng.random((5, 4, 3))
+        still.setflags(write=False)
+        assert texture_cache.frozen(still) and not texture_cache.frozen(live)
+        view = live[::2]
+        view.setflags(write=False)
+        assert not texture_cache.frozen(view)  # read-only, but a view of memory that can change
+        textures = {float_texture(map_texels(still), linear=True) for _ in range(5)}
+    assert len(textures) == 1 and len(hashed) == 3

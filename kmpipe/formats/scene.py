@@ -243,7 +243,8 @@ class Scene:
     ``normal_map`` tangent-space unit vectors (rows, columns, 3), ``roughness`` the skin lobe's Beckmann m (rows,
     columns) and ``occlusion_map`` a mesh file's ambient occlusion (rows, columns), over uv, or None
     (:mod:`kmpipe.formats.surface_maps`). A mesh file's own base colour and normal map stand in for an albedo
-    texture and a normal map the scene does not name.
+    texture and a normal map the scene does not name. The arrays are made read-only: a scene's maps never change,
+    which lets the renderer hash each once however many frames use it (:func:`renderer.texture_cache.frozen`).
     """
 
     path: Path
@@ -260,6 +261,13 @@ class Scene:
     normal_map: np.ndarray | None = None
     roughness: np.ndarray | None = None
     occlusion_map: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        maps = (*self.thicknesses_mm, self.substrate, self.albedo, self.environment, self.normal_map, self.roughness,
+                self.occlusion_map)  # fmt: skip
+        for values in maps:
+            if isinstance(values, np.ndarray):
+                values.setflags(write=False)
 
     @property
     def name(self) -> str:

@@ -133,7 +133,9 @@ def _surface(scene: Scene, plan: ScenePlan) -> ChannelStack | Precomposed:
 def _albedo_weights(scene: Scene, albedo: np.ndarray, basis: np.ndarray, space) -> np.ndarray:
     """:func:`kmpipe.formats.albedo_texture.texture_weights`, its refusal said as bad input naming the scene's field."""
     try:
-        return texture_weights(albedo, basis, space)
+        weights = texture_weights(albedo, basis, space)
+        weights.setflags(write=False)  # the same for every frame: hashed once (renderer.texture_cache.frozen)
+        return weights
     except ValueError as err:
         key = "skin" if scene.info.skin is not None else "substrate"
         raise InputError(str(err), path=scene.path, field=f"{key}.albedo_texture") from None

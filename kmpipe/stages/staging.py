@@ -138,11 +138,13 @@ def normal_map(scene: Scene) -> NormalMap | None:
     if scene.normal_map is None:
         return None
     rows, columns = scene.normal_map.shape[:2]
-    total = np.zeros((rows, columns))
+    total = 0.0  # a number while every film is uniform, else a map over the normal map's grid
     for thickness in scene.thicknesses_mm:
         value = np.asarray(thickness, dtype=float)
         if value.ndim == 2 and value.shape != (rows, columns):
             value = cv2.resize(value, (columns, rows), interpolation=cv2.INTER_LINEAR)
         total = total + value
+    if isinstance(total, np.ndarray) and total.ndim == 2:
+        total.setflags(write=False)  # the same for every frame: hashed once (renderer.texture_cache.frozen)
     fill = parse_thickness_mm(scene.info.base.normal_fill)
-    return NormalMap(scene.normal_map, total, fill)
+    return NormalMap(scene.normal_map, float(total) if np.ndim(total) == 0 else total, fill)
