@@ -11,6 +11,7 @@ product's centre, turned to face the camera's azimuth (it stands still while the
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 
 import cv2
@@ -89,11 +90,28 @@ def eyes(scene: Scene, model: np.ndarray) -> tuple[Prop, ...]:
     return tuple(Prop(mesh, albedo, model) for mesh, (_, albedo) in zip(_eye_meshes(), EYES, strict=True))
 
 
+#: Bakes kept per process (:func:`occlusion`), the oldest dropped first.
+KEPT_BAKES = 8
+_bakes: dict[bytes, np.ndarray] = {}
+
+
 def occlusion(scene: Scene) -> np.ndarray:
     """Ambient occlusion per vertex of the scene's mesh (:func:`renderer.occlusion.vertex_occlusion`), occluded by
     itself and what turns with it (the bundled head's eyes), times a mesh file's own occlusion map at each vertex's
-    uv (bilinear)."""
-    baked = vertex_occlusion(scene.mesh, [prop.mesh for prop in eyes(scene, np.eye(4))])
+    uv (bilinear). The bake is in the mesh's own frame: it is kept per process for meshes of the same vertices,
+    normals and faces (every row of a shade review, every product of a line on the bundled head)."""
+    others = [prop.mesh for prop in eyes(scene, np.eye(4))]
+    digest = hashlib.sha1(usedforsecurity=False)
+    for mesh in (scene.mesh, *others):
+        for values in (mesh.vertices, mesh.vertex_normals, mesh.faces):
+            digest.update(np.ascontiguousarray(values).tobytes())
+    key = digest.digest()
+    if key not in _bakes:
+        while len(_bakes) >= KEPT_BAKES:
+            _bakes.pop(next(iter(_bakes)))
+        _bakes[key] = vertex_occlusion(scene.mesh, others)
+        _bakes[key].setflags(write=False)
+    baked = _bakes[key]
     if scene.occlusion_map is None:
         return baked
     return baked * np.clip(at_uv(scene.occlusion_map, np.asarray(scene.mesh.visual.uv)), 0.0, 1.0)
