@@ -22,6 +22,8 @@ from kmpipe.errors import InputError
 from kmpipe.formats import files
 from kmpipe.formats.manifest import MAX_SMOOTHNESS, METHODS, parse_grid
 from kmpipe.physics.flags import Flag
+from kmpipe.stages.opengl import use_gl
+from renderer.gl_platform import CHOICES as GL_CHOICES
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 70
 #: Errors of the user's file system, not of kmpipe: a path named too long, a loop of links, no permission, a full
@@ -349,6 +351,12 @@ def _cmd_render(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def _recipe_gl(recipe, args: argparse.Namespace) -> None:
+    """The recipe's ``[line] gl``, unless ``--gl`` chose."""
+    if args.gl is None and recipe.info.line.gl is not None:
+        use_gl(recipe.info.line.gl, path=recipe.path, field="line.gl")
+
+
 def _execute(plan, args: argparse.Namespace, console: Console, label: str):
     """Run a planned graph of tasks as the command's options say, with a progress bar named ``label``."""
     from kmpipe.run.execute import execute
@@ -368,6 +376,7 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
 
     out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
     plan = plan_run(args.recipe, out_dir, only=args.only or (), keep_going=args.keep_going)
+    _recipe_gl(plan.recipe, args)
     if args.dry_run:
         console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
         return EXIT_OK
@@ -410,6 +419,7 @@ def _cmd_review(args: argparse.Namespace, console: Console) -> int:
 
     out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
     plan = plan_run(args.recipe, out_dir, review_only=True)
+    _recipe_gl(plan.recipe, args)
     if args.dry_run:
         console.print(plan.explain(), highlight=False, markup=False, soft_wrap=True)
         return EXIT_OK
@@ -459,6 +469,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"kmpipe {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
+    parser.add_argument(
+        "--gl", choices=GL_CHOICES, help="render through OSMesa (CPU), EGL (a GPU) or auto (EGL where a GPU is; the "
+        "default, or a recipe's [line] gl)",
+    )  # fmt: skip
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     fit = commands.add_parser(
@@ -683,6 +697,8 @@ def main(argv: list[str] | None = None) -> int:
     console = Console(emoji=False)  # user text: ":x:" is not an emoji
     errors = Console(stderr=True, emoji=False)
     try:
+        if args.gl is not None:
+            use_gl(args.gl, field="--gl")
         return args.run(args, console)
     except InputError as err:
         if args.debug:

@@ -21,7 +21,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
@@ -40,6 +40,7 @@ SOURCES = ("measure", "replay", "fit", "material")
 
 class LineInfo(RenderSettings):
     name: str = Field(min_length=1)
+    gl: Literal["auto", "osmesa", "egl"] | None = None  # the OpenGL platform (kmpipe.stages.opengl); None: as set
 
 
 class ValidationInfo(StrictModel):

@@ -300,7 +300,10 @@ def render_scene(
         )
     plan = plan_scene(scene) if plan is None else plan
     if explain:
+        from renderer.context import renderer_name
+
         echo(plan.explain())
+        echo(f"OpenGL: {renderer_name()} (kmpipe --gl, KMPIPE_GL: osmesa, egl or auto)")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     header = {
