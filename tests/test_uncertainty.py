@@ -432,3 +432,20 @@ def test_a_white_standard_uncertainty_per_wavelength_from_a_csv(tmp_path, capsys
     write_spectra_csv(dataclasses.replace(table, values=np.full((1, grid.size), 0.5)), folder / "certificate_u.csv")
     status, _, err = _run(capsys, "fit", manifest, "-o", tmp_path / "F1.json")
     assert status == 2 and "certificate_u.csv" in err and "[0, 0.1]" in err
+
+
+def test_a_masstone_at_ks_bound_gives_a_budget_far_from_overflow(tmp_path, capsys):
+    """The bundled lipstick L1 fitted by the black-white method rests on K >= 0 at long wavelengths, where a
+    masstone's dR/dK is infinite: its budget was written with H near 1e303, one step from overflow, and refused when
+    read back. Taken at K = 1e-12 (K + S) there, the budget's numbers stay below 1e12, the material reads back, and
+    the rendered colour's radius is a finite, plausible number."""
+    status, _, err = run(capsys, "fit", str(ROOT / "recipes" / "samples" / "L1" / "manifest.toml"), "-o",
+                    str(tmp_path / "L1.json"), "--method", "black-white")  # fmt: skip
+    assert status == 0, err
+    material = read_material(tmp_path / "L1.json")
+    assert material.budget is not None and np.any(material.K == 0.0)
+    doc = json.loads((tmp_path / "L1.json").read_text(encoding="utf-8"))["uncertainty"]
+    largest = max(abs(v) for band in doc["H_bands"] for v in band)
+    assert largest < 1e12
+    radius = colour_radius(material.budget, 0.03, np.full(material.K.size, 0.8), material.wavelengths, "D65")
+    assert 0.0 < radius < 5.0

@@ -23,9 +23,10 @@ KINDS = ("noise", "backing", "thickness", "white")
 #: The largest standard uncertainty of K or S (1/mm) a budget may give: far beyond any measured doubt (a real one is
 #: below 1e3), and small enough that the CIELAB covariance propagated from it stays finite in double precision.
 LARGEST_UNCERTAINTY = 1e100
-#: The largest magnitude of any number of a budget. A masstone's dR/dK grows without bound as K -> 0 (a wavelength the
-#: fit flags), so H reaches about 1e297 there; a hand-edited 1e308 would overflow the products the budget is used in.
-LARGEST_ENTRY = 1e300
+#: The largest magnitude of any number of a budget: one as kmpipe fit writes it stays below about 1e12 (the largest
+#: where a masstone's K rests on its bound, :data:`kmpipe.physics.fit_covariance.BOUND_K`); products of a few such
+#: numbers stay finite.
+LARGEST_ENTRY = 1e100
 ORDER = "theta = (K_1, S_1, ..., K_n, S_n) in 1/mm; Cov(theta) = H^-1 (sum of the sources' information) H^-1"
 
 

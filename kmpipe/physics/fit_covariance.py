@@ -46,6 +46,8 @@ from kmpipe.physics.saunderson import saunderson_inverse
 
 #: Relative step of the central differences in thickness and backing reflectance.
 STEP = 1e-6
+#: K / (K + S) below which a masstone's dR/dK is taken at this ratio (:func:`sensitivity`).
+BOUND_K = 1e-12
 #: Eigenvalues of the scaled H below this fraction of its largest are taken as 0 (directions the data cannot see).
 SINGULAR = 1e-12
 
@@ -186,6 +188,14 @@ def sensitivity(K, S, thickness, backgrounds_raw, saunderson=None) -> Sensitivit
 
     model, p, r = _Model.at(K, S, X, body(G_raw), saunderson)
     R, _, _, dK, dS = model.evaluate(p, r)
+    # A masstone's dR/dK grows without bound as K -> 0 (where the fit rests on its bound K >= 0): there it is taken at
+    # K = BOUND_K (K + S), a slope still a million times the usual (K's doubt ~0 there, which is true) that keeps
+    # J^T J, the budget and the files that hold it far from overflow.
+    K, S = np.asarray(K, dtype=np.float64), np.asarray(S, dtype=np.float64)
+    at_bound = K < BOUND_K * (K + S)
+    if at_bound.any():
+        lifted, q, t = _Model.at(np.where(at_bound, BOUND_K * (K + S), K), S, X, body(G_raw), saunderson)
+        dK = np.where(at_bound, lifted.evaluate(q, t)[3], dK)
     h = STEP * np.where(film, X, 1.0)
     dX = np.zeros_like(R)
     if film.any():
