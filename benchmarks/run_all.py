@@ -22,6 +22,7 @@ import bench_render_modes
 import bench_review
 import bench_run
 import bench_skin
+import bench_trade
 import bench_uncertainty
 import numpy as np
 from common import REPO, Table, machine
@@ -39,6 +40,7 @@ def _summary(
     run_rows: list,
     review_rows: list,
     uncertainty: dict,
+    trade: dict,
 ) -> Table:
     rows = []
     for t in inversion["timings"]:
@@ -116,6 +118,8 @@ def _summary(
     for key, target in limits.items():
         met = "yes" if uncertainty[key] <= target else "no"
         rows.append([labels[key], f"<= {target * 1e3:.0f}", f"{uncertainty[key] * 1e3:.0f}", met])
+    met = "yes" if trade["seconds"] < bench_trade.TARGET_S else "no"
+    rows.append(["kmpipe trade on the demo line, end to end: s", "< 300", f"{trade['seconds']:.0f}", met])
     return Table(
         "Targets", ["quantity", "target", "measured", "met"], rows, ["inversion and fit rows on noisy readings"]
     )
@@ -172,9 +176,11 @@ def main() -> None:
     run_rows = measure("Product line", bench_run)
     uncertainty = measure("Uncertainty to the rendered colour", bench_uncertainty)
     review_rows = measure("Shade review", bench_review)
+    trade = measure("The speed/accuracy trade of the demo line", bench_trade)
     total = time.perf_counter() - started
 
-    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows, review_rows, uncertainty)
+    summary = _summary(inversion, fit, render_rows, mode_rows, skin_rows, look, run_rows, review_rows, uncertainty,
+                       trade)  # fmt: skip
     summary.print()
     for _, tables, _ in parts:
         for table in tables:
@@ -185,8 +191,8 @@ def main() -> None:
         "# Benchmarks",
         "",
         "Speed and accuracy of kmpipe's closed-form inversions, joint K, S fit, render modes, rendering, skin, the",
-        "full look on the bundled head, product-line runs, the uncertainty of the rendered colour and the shade",
-        "review, on simulated drawdowns",
+        "full look on the bundled head, product-line runs, the uncertainty of the rendered colour, the shade",
+        "review and the demo line's speed/accuracy trade (kmpipe trade), on simulated drawdowns",
         "of real paint K and S (RIT Artist Paint Spectral Database, Golden acrylics; titanium white plus 1-3",
         "paints, Duncan mixing, K and S of the table x 10 read as 1/mm). Written by `benchmarks/run_all.py`:",
         "do not edit by hand; rerun it. Benchmarks measure, they do not pass or fail; speed never goes into",

@@ -444,6 +444,58 @@ def _cmd_review(args: argparse.Namespace, console: Console) -> int:
     return EXIT_OK
 
 
+def _cmd_trade(args: argparse.Namespace, console: Console) -> int:
+    from kmpipe.formats.recipe import load_recipe
+    from kmpipe.run.trade import trade_line
+
+    out_dir = files.output_folder(args.output or args.recipe.parent / "out", create=False)
+    _recipe_gl(load_recipe(args.recipe), args)
+    with _progress(console) as progress:
+        bar = progress.add_task("trade", total=None)
+        result = trade_line(args.recipe, out_dir, only=args.only or (), wait=args.wait,
+                            echo=lambda text: progress.update(bar, description=text))  # fmt: skip
+    table = Table(title=f"kmpipe trade: {escape(result.line)} (one frame of each product; target ΔE00 "
+                        f"{result.target:g})", title_justify="left")  # fmt: skip
+    for column, justify in (
+        ("knob", "left"),
+        ("setting", "left"),
+        ("products", "right"),
+        ("s", "right"),
+        ("ΔE00 mean", "right"),
+        ("ΔE00 p95", "right"),
+        ("vs planned", "right"),
+        ("", "left"),
+    ):
+        table.add_column(column, justify=justify, no_wrap=True)  # fmt: skip
+    for row in result.rows:
+        marks = ", ".join(m for m, on in (("planned", row.planned), ("front", row.front)) if on)
+        table.add_row(escape(row.knob), escape(row.value), str(row.products), f"{row.seconds:.2f}",
+                      f"{row.mean_de:.3f}", f"{row.p95_de:.3f}", f"{row.shift_de:.3f}", marks)  # fmt: skip
+    wide = Console(emoji=False, width=max(console.width, 150))
+    wide.print(table)
+    wide.print("ΔE00 mean and p95: per pixel of the products, against the most exact setting; vs planned: the mean "
+               "against the frames as planned (what the setting alone changes)", highlight=False)  # fmt: skip
+    missing = sorted({s.knob for s in result.settings if s.seconds is None} - {r.knob for r in result.rows})
+    if missing:
+        console.print(f"not applicable to this line: {', '.join(missing)}", highlight=False)
+    planned = next(r for r in result.rows if r.knob == "planned" and r.planned)
+    verdict = "within" if planned.mean_de <= result.target else "above"
+    wide.print(f"as planned: {planned.seconds:.2f} s for {planned.products} frames, mean ΔE00 {planned.mean_de:.3f} "
+               f"against the most exact setting, {verdict} the target {result.target:g}", highlight=False)  # fmt: skip
+    closest = min((r for r in result.rows if r.knob != "planned"), key=lambda r: r.mean_de, default=None)
+    if closest is not None and closest.mean_de < planned.mean_de:
+        wide.print(f"closest to it with one knob changed: {closest.knob} = {closest.value} (mean ΔE00 "
+                      f"{closest.mean_de:.3f}, {closest.seconds:.2f} s)", highlight=False, markup=False)  # fmt: skip
+    for knob, row in result.chosen.items():
+        chosen = next((r.value for r in result.rows if r.knob == knob and r.planned), None)
+        verdict = "as planned" if chosen == row.value else f"planned: {chosen}"
+        console.print(f"cheapest within ΔE00 {result.target:g}: {knob} = {row.value} ({verdict})", highlight=False,
+                      markup=False)  # fmt: skip
+    console.print(f"wrote {', '.join(str(path) for path in result.files)}", highlight=False, markup=False,
+                  soft_wrap=True)  # fmt: skip
+    return EXIT_OK
+
+
 def _graph_options(command: argparse.ArgumentParser) -> None:
     """The options of a command that runs a recipe's graph of tasks (``run``, ``review``)."""
     command.add_argument("-o", "--output", type=Path, help="output folder (default: out/ beside the recipe)")
@@ -688,6 +740,23 @@ def build_parser() -> argparse.ArgumentParser:
     review.add_argument("recipe", type=Path, help="recipe file with a [review] table, TOML (docs/formats.md)")
     _graph_options(review)
     review.set_defaults(run=_cmd_review)
+
+    trade = commands.add_parser(
+        "trade",
+        help="the speed/accuracy trade on a line's own products: every knob's time and Delta E 2000",
+        description="Renders one frame of each product of the line as planned, with one knob at a time set "
+        "otherwise (render mode, thickness table samples, antialiasing, soft shadows, shadow map, subsurface "
+        "scattering, environment map size, resolution, the materials' fit), and at the most exact setting of "
+        "all; prints each setting's time and its Delta E 2000 against that reference over the product's pixels, "
+        "the Pareto front, and what the planner chose against the cheapest setting within the line's target; writes "
+        "trade.csv, trade.json and trade.png under the output folder's trade/. The materials are made (or found "
+        "cached) as kmpipe run makes them. Exit status 0: done; 2: bad input.",
+    )
+    trade.add_argument("recipe", type=Path, help="recipe file, TOML (docs/formats.md)")
+    trade.add_argument("-o", "--output", type=Path, help="output folder (default: out/ beside the recipe)")
+    trade.add_argument("--only", nargs="+", metavar="PRODUCT", help="measure only these products")
+    trade.add_argument("--wait", action="store_true", help="wait for another run on the same output folder to end")
+    trade.set_defaults(run=_cmd_trade)
     return parser
 
 

@@ -1,0 +1,99 @@
+"""The files of ``kmpipe trade`` (:mod:`kmpipe.stages.trade`): ``trade.csv`` (every product's settings),
+``trade.json`` (the same, the line's settings summed over products with the Pareto front, and the planner's choice
+against the cheapest setting within the target) and ``trade.png`` (time against Delta E 2000, the front drawn);
+docs/formats.md, "Trade". Each is written atomically."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from kmpipe.formats.atomic_write import write_atomically, write_text_atomically
+from kmpipe.stages.trade import KNOBS, Aggregate, Setting
+
+#: Columns of trade.csv, in order.
+COLUMNS = ("product", "knob", "value", "seconds", "mean_de", "p95_de", "shift_de", "planned", "note")
+
+
+def _number(value: float | None, digits: int) -> str:
+    return "" if value is None else f"{value:.{digits}g}"
+
+
+def trade_csv(settings: Sequence[Setting]) -> str:
+    """trade.csv: a row per product and setting, times in s, Delta E 2000 against the reference (mean, 95th
+    percentile) and against the frame as planned (mean), empty where the knob does not apply."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(COLUMNS)
+    for s in settings:
+        writer.writerow([s.product, s.knob, s.value, _number(s.seconds, 4), _number(s.mean_de, 4),
+                         _number(s.p95_de, 4), _number(s.shift_de, 4), "yes" if s.planned else "", s.note])  # fmt: skip
+    return out.getvalue()
+
+
+def trade_json(line: str, target: float, settings: Sequence[Setting], rows: Sequence[Aggregate],
+               chosen: dict[str, Aggregate]) -> str:  # fmt: skip
+    """trade.json (docs/formats.md, "Trade")."""
+    doc = {
+        "line": line,
+        "target_delta_e": target,
+        "settings": [asdict(s) for s in settings],
+        "line_settings": [asdict(r) for r in rows],
+        "cheapest_within_target": {knob: row.value for knob, row in chosen.items()},
+        "planned": {r.knob: r.value for r in rows if r.planned and r.knob not in ("planned",)},
+    }
+    return json.dumps(doc, indent=1, allow_nan=False) + "\n"
+
+
+def trade_figure(line: str, target: float, rows: Sequence[Aggregate]) -> bytes:
+    """trade.png: each setting that applies to every product (time summed over them against mean Delta E 2000),
+    coloured by knob, the planner's ringed, the Pareto front joined and labelled, the target drawn."""
+    everyone = max((r.products for r in rows), default=0)
+    shown = [r for r in rows if r.products == everyone]
+    fig = Figure(figsize=(10.0, 6.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for index, knob in enumerate(KNOBS):
+        points = [r for r in shown if r.knob == knob]
+        if points:
+            ax.scatter([r.mean_de for r in points], [r.seconds for r in points], color=f"C{index % 10}", label=knob,
+                       s=30, zorder=3)  # fmt: skip
+    planned = [r for r in shown if r.planned]
+    ax.scatter([r.mean_de for r in planned], [r.seconds for r in planned], s=140, facecolors="none",
+               edgecolors="black", linewidths=1.2, label="as the planner chose", zorder=4)  # fmt: skip
+    front = sorted((r for r in shown if r.front), key=lambda r: r.mean_de)
+    ax.plot([r.mean_de for r in front], [r.seconds for r in front], "-", color="0.3", linewidth=1, zorder=2,
+            label="Pareto front")  # fmt: skip
+    for r in front:
+        ax.annotate(f"{r.knob}: {r.value}", (r.mean_de, r.seconds), fontsize=7, xytext=(4, 3),
+                    textcoords="offset points")  # fmt: skip
+    ax.axvline(target, color="#c62828", linestyle="--", linewidth=1, label=f"target ΔE00 {target:g}")
+    ax.set_xscale("symlog", linthresh=0.01)
+    ax.set_xlim(left=0.0)
+    ax.set_ylim(bottom=0.0)
+    ax.set_xlabel("mean ΔE00 against the most exact setting, over the products' pixels")
+    ax.set_ylabel(f"seconds (a frame of each of the {everyone} products, summed)")
+    ax.set_title(f"{line}: speed against accuracy, one knob at a time (knobs of fewer products: trade.csv)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, metadata={"Software": None})
+    return buffer.getvalue()
+
+
+def write_trade(out_dir: Path, line: str, target: float, settings: Sequence[Setting], rows: Sequence[Aggregate],
+                chosen: dict[str, Aggregate]) -> list[Path]:  # fmt: skip
+    """Write trade.csv, trade.json and trade.png into ``out_dir``; their paths."""
+    paths = [out_dir / "trade.csv", out_dir / "trade.json", out_dir / "trade.png"]
+    write_text_atomically(paths[0], trade_csv(settings))
+    write_text_atomically(paths[1], trade_json(line, target, settings, rows, chosen))
+    figure = trade_figure(line, target, rows)
+    write_atomically(paths[2], lambda temporary: temporary.write_bytes(figure))
+    return paths
