@@ -29,7 +29,7 @@ import os
 import sys
 import threading
 
-from renderer.gl_platform import CHOICE_VARIABLE, DEVICE_VARIABLE, choose
+from renderer.gl_platform import CHOICE_VARIABLE, DEVICE_VARIABLE, choose, is_hardware
 
 _MISSING = {
     "osmesa": "the OSMesa offscreen OpenGL library could not be loaded: install the Debian package libosmesa6 "
@@ -159,7 +159,7 @@ class _EGLContext:
             eglQueryDevicesEXT(count.value, devices, ctypes.byref(count))
             for device in devices[: count.value]:
                 extensions = (eglQueryDeviceStringEXT(device, EGL.EGL_EXTENSIONS) or b"").decode(errors="replace")
-                if "EGL_MESA_device_software" not in extensions.split():
+                if is_hardware(extensions):
                     hardware.append(device)
         wanted = os.environ.get(DEVICE_VARIABLE, "0")
         if not hardware:

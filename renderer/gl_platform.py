@@ -14,6 +14,12 @@ CHOICE_VARIABLE = "KMPIPE_GL"
 DEVICE_VARIABLE = "KMPIPE_EGL_DEVICE"
 
 
+def is_hardware(extensions: str) -> bool:
+    """Whether an EGL device of these extensions (its EGL_EXTENSIONS string) is hardware: Mesa marks its software
+    device ``EGL_MESA_device_software``."""
+    return "EGL_MESA_device_software" not in extensions.split()
+
+
 def hardware_devices() -> list[str]:
     """The EGL devices that are hardware (their extension strings; Mesa's software device left out), read through
     libEGL with ctypes before any platform is chosen; empty where libEGL or device enumeration is missing."""
@@ -38,7 +44,7 @@ def hardware_devices() -> list[str]:
     found = [
         (string(device, 0x3055) or b"").decode(errors="replace") for device in devices[: count.value]
     ]  # EXTENSIONS
-    return [names for names in found if "EGL_MESA_device_software" not in names.split()]
+    return [names for names in found if is_hardware(names)]
 
 
 def choose(choice: str, hardware: bool | None = None) -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from lambert import lambert
+from lambert import joined, lambert
 
 from kmpipe import cli
 from kmpipe.formats.scene import load_scene
@@ -86,19 +86,6 @@ def test_multisampled_a_pixel_takes_the_share_of_its_4_samples_on_the_card():
     assert np.array_equal(image[inside], plain[inside])  # bit for bit where the card covers the whole pixel
 
 
-def _joined(*parts: trimesh.Trimesh) -> trimesh.Trimesh:
-    """One mesh of several parts, each keeping its vertex normals and uv."""
-    vertices, faces, normals, uv, offset = [], [], [], [], 0
-    for part in parts:
-        vertices.append(part.vertices)
-        faces.append(part.faces + offset)
-        normals.append(part.vertex_normals)
-        uv.append(part.visual.uv)
-        offset += len(part.vertices)
-    return trimesh.Trimesh(np.vstack(vertices), np.vstack(faces), vertex_normals=np.vstack(normals),
-                           visual=trimesh.visual.TextureVisuals(uv=np.vstack(uv)), process=False)  # fmt: skip
-
-
 def _shares(image: np.ndarray, front: np.ndarray, back: np.ndarray) -> np.ndarray:
     """j (0 .. 4) with image = back + j / 4 (front - back) in every pixel and channel, asserted."""
     j = (image - back) / (front - back) * 4.0
@@ -118,7 +105,7 @@ def test_multisampled_a_crease_of_one_mesh_takes_the_share_of_each_face():
         face.apply_transform(trimesh.transformations.translation_matrix((10.0 * side, 0.0, 0.0)))
         face.apply_transform(trimesh.transformations.rotation_matrix(np.radians(-30.0 * side), (0.0, 1.0, 0.0)))
         faces.append(face)
-    roof = _joined(*faces)
+    roof = joined(*faces)
     roof.apply_transform(trimesh.transformations.rotation_matrix(np.radians(23.0), (0.0, 0.0, 1.0)))
     light = DirectionalLight(direction=(-0.6, 0.0, -0.8), radiance=tuple(RADIANCE), cast_shadows=False)
     camera = OrthographicCamera(half_height=8.0)
@@ -138,7 +125,7 @@ def test_multisampled_a_surface_over_another_of_the_same_mesh_and_a_prop_behind_
     front = _tilted_card()
     front.apply_transform(trimesh.transformations.translation_matrix((0.0, 0.0, 2.0)))
     back = meshes.card(30.0, 30.0)
-    mesh = _joined(front, back)
+    mesh = joined(front, back)
     occlusion = np.r_[np.full(len(front.vertices), 0.5), np.ones(len(back.vertices))]
     prop = Prop(mesh=meshes.card(60.0, 60.0), albedo=(0.2, 0.2, 0.2),
                 model=trimesh.transformations.translation_matrix((0.0, 0.0, -3.0)))  # fmt: skip

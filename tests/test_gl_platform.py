@@ -83,6 +83,8 @@ def test_auto_takes_egl_where_a_hardware_device_is(hardware, platform):
 def test_the_devices_auto_counts_are_hardware_ones():
     found = gl_platform.hardware_devices()  # this machine: Mesa's software device only, or a GPU's as well
     assert all("EGL_MESA_device_software" not in names.split() for names in found)
+    assert not gl_platform.is_hardware("EGL_MESA_device_software EGL_EXT_device_drm_render_node")
+    assert gl_platform.is_hardware("EGL_NV_device_cuda EGL_EXT_device_drm")
 
 
 def test_an_unknown_platform_is_refused_where_it_is_read(tmp_path, capsys):

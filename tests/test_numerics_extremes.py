@@ -16,7 +16,7 @@ import warnings
 import mp_reference as ref
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from kmpipe.physics import inversion as inv
@@ -268,6 +268,7 @@ background = st.one_of(st.floats(0.0, 1.0), st.sampled_from((0.0, 1.0, 1.0 - 1e-
 
 @settings(max_examples=400, deadline=None)
 @given(K=extreme, S=extreme, X=extreme, Rg=background)
+@example(K=7.546498765922194e307, S=9.999999999999998e307, X=2.2250738585e-313, Rg=0.0)  # (a draw: subnormal X)
 def test_forward_model_stays_in_unit_interval_without_warnings(K, S, X, Rg):
     R0, T = _no_warnings(km.film_reflectance_transmittance, K, S, X)
     R = _no_warnings(km.reflectance_over_background, K, S, X, Rg)

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from lambert import joined
 from scipy import integrate, optimize
 
 from renderer import meshes
@@ -454,12 +455,7 @@ def test_soft_shadows_at_half_resolution_do_not_leak_across_a_silhouette():
     front = meshes.card(12.0, 8.0)
     front.apply_transform(trimesh.transformations.rotation_matrix(np.radians(23.0), (0.0, 0.0, 1.0)))
     front.apply_transform(trimesh.transformations.translation_matrix((0.0, 0.0, 6.0)))
-    back = meshes.card(30.0, 30.0)
-    vertices = np.vstack([front.vertices, back.vertices])
-    faces = np.vstack([front.faces, back.faces + len(front.vertices)])
-    normals = np.vstack([front.vertex_normals, back.vertex_normals])
-    uv = trimesh.visual.TextureVisuals(uv=np.vstack([front.visual.uv, back.visual.uv]))
-    mesh = trimesh.Trimesh(vertices, faces, vertex_normals=normals, visual=uv, process=False)
+    mesh = joined(front, meshes.card(30.0, 30.0))
     light = DirectionalLight((0.0, 0.0, -1.0), (1.0, 1.0, 1.0), angle_deg=20.0)
     image = render_layers(Scene(mesh=mesh, stack=ChannelStack((), (), (0.5, 0.5, 0.5)),
                                 camera=OrthographicCamera(half_height=10.0, eye=(0.0, 0.0, 50.0)), lights=[light],

@@ -94,9 +94,13 @@ def film_reflectance_transmittance(K, S, X) -> tuple[np.ndarray, np.ndarray]:
         x = beta_half * X * 2.0
     thick = x > _THICK
     x = np.minimum(x, _THICK)
-    g = np.where(thick, 0.5 / np.where(thick, beta_half, 1.0), X * _tanhc(x))
+    thick_g = 0.5 / np.where(thick, beta_half, 1.0)
+    tanhc = _tanhc(x)
+    g = np.where(thick, thick_g, X * tanhc)
     with np.errstate(over="ignore"):  # an overflow here means the form in 1 / g below
-        Kg, Sg = K * g, S * g
+        # K X tanhc(x), not K (X tanhc(x)): a subnormal X would round X tanhc(x) to a handful of bits
+        Kg = np.where(thick, K * thick_g, (K * X) * tanhc)
+        Sg = np.where(thick, S * thick_g, (S * X) * tanhc)
         huge = Kg + Sg > _HUGE
     Kg, Sg = np.where(huge, 0.0, Kg), np.where(huge, 0.0, Sg)
     D = 1.0 + Kg + Sg

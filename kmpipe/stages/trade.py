@@ -1,12 +1,13 @@
 """The speed/accuracy trade of a product line, measured on its own products (``kmpipe trade``).
 
-For each product, one frame (the turntable's first) is rendered as the planner plans it, then with one knob at a
-time set otherwise, and at the most exact setting of every knob at once (the reference): exact render mode, 3 x 3
-supersampling, soft shadows at every pixel, the largest shadow map, the environment at its full size, subsurface
-scattering on, the materials as fitted. For each setting: the time of its frame (the render alone, after a warm-up;
-what it adds before the frame, a refit or an environment's prefilter, counted where the knob moves it) and the Delta
-E 2000 of each of the product's pixels against the reference (linear sRGB -> XYZ -> CIELAB, D65), its mean and 95th
-percentile. The product's pixels are those the product itself covers, found by rendering it alone.
+For each product, one frame (the turntable's first) is rendered as the planner plans it (measured once: it is also
+every knob's planned setting), then with one knob at a time set otherwise, and at the most exact setting of every
+knob at once (the reference): exact render mode, 3 x 3 supersampling, soft shadows at every pixel, the largest
+shadow map, the environment at its full size, subsurface scattering on, the materials as fitted. For each setting:
+the time of its frame (the render alone, after a warm-up; what it adds before the frame, a refit or an environment's
+prefilter, counted where the knob moves it) and the Delta E 2000 of each of the product's pixels against the
+reference (linear sRGB -> XYZ -> CIELAB, D65), its mean and 95th percentile, and the mean against the planned frame.
+The product's pixels are those the product itself covers, found by rendering it alone.
 
 The knobs (:data:`KNOBS`), each reported "not applicable" where it cannot change the product's frame (no skin: no
 subsurface scattering; no area light: no soft-shadow sampling; one thickness: no thickness axis; no environment;
@@ -40,6 +41,7 @@ import colour
 import numpy as np
 
 from kmpipe.formats.scene import Scene, build_scene
+from kmpipe.physics.colorimetry import delta_E_2000
 from kmpipe.stages.render_plan import DEFAULT_TARGET_DE, SHADOW_MAP_SIZES, ScenePlan, parse_mode, plan_scene
 
 #: The knobs, in the order the tables list them.
@@ -67,6 +69,7 @@ class Setting:
 
 
 def _lab(image: np.ndarray) -> np.ndarray:
+    """CIELAB (D65, 2 degrees) of linear sRGB."""
     xyz = colour.RGB_to_XYZ(np.clip(image, 0.0, None), colour.RGB_COLOURSPACES["sRGB"], apply_cctf_decoding=False)
     return colour.XYZ_to_Lab(xyz, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
 
@@ -79,7 +82,7 @@ def _box(image: np.ndarray, k: int) -> np.ndarray:
 
 def delta_e_stats(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
     """Mean and 95th percentile of the per-pixel Delta E 2000 between two linear sRGB frames over ``mask``."""
-    d = colour.delta_E(_lab(image[mask]), _lab(reference[mask]), method="CIE 2000")
+    d = delta_E_2000(_lab(image[mask]), _lab(reference[mask]))
     return float(np.mean(d)), float(np.percentile(d, 95))
 
 
@@ -104,7 +107,8 @@ class _Product:
         ))[1]  # fmt: skip
         alone = dataclasses.replace(exact, props=(), background=(0.0, 0.0, 0.0), supersampling=1, multisamples=1)
         self.mask = self.render(alone)[1].max(axis=-1) > 0.0
-        self.planned = self.render(self.frame)[1]
+        self.planned_seconds, self.planned = self.render(self.frame)
+        self.planned_de = delta_e_stats(self.planned, self.reference, self.mask)
 
     def render(self, frame) -> tuple[float, np.ndarray]:
         """(seconds of a render after a warm-up one, the image)."""
@@ -123,6 +127,14 @@ class _Product:
         mean, p95 = delta_e_stats(image, self.reference, self.mask)
         shift = delta_e_stats(image, self.planned, self.mask)[0]
         return Setting(self.name, knob, value, seconds + extra_s, mean, p95, planned, shift_de=shift)
+
+    def as_planned(self, knob: str, value: str, note: str = "") -> Setting:
+        """The knob's setting that is the plan's: the planned frame, measured once for every knob."""
+        return Setting(self.name, knob, value, self.planned_seconds, *self.planned_de, True, note, shift_de=0.0)
+
+    def either(self, knob: str, value: str, planned: bool, frame) -> Setting:
+        """:meth:`as_planned` where ``planned``, else ``frame`` measured."""
+        return self.as_planned(knob, value) if planned else self.measure(knob, value, frame)
 
     def not_applicable(self, knob: str, why: str) -> Setting:
         return Setting(self.name, knob, "-", None, None, None, note=f"not applicable: {why}")
@@ -159,8 +171,10 @@ def _thickness_samples(product: _Product) -> list[Setting]:
         )  # fmt: skip
         plan = dataclasses.replace(product.plan, tables=dataclasses.replace(product.plan.tables, tables=resized))
         counts = "/".join(str(t.n_samples) for t in resized if t.n_samples > 1)
-        frame = product.frame_of(product.scene, plan)
-        setting = product.measure("thickness samples", label, frame, planned=factor == 1.0)
+        if factor == 1.0:
+            out.append(product.as_planned("thickness samples", label, note=f"samples: {counts}"))
+            continue
+        setting = product.measure("thickness samples", label, product.frame_of(product.scene, plan))
         out.append(dataclasses.replace(setting, note=f"samples: {counts}"))
     return out
 
@@ -170,16 +184,17 @@ def _antialiasing(product: _Product) -> list[Setting]:
     planned = (frame.supersampling, frame.multisamples)
     choices = (("1 sample", 1, 1), ("4 x multisampling", 1, 4), ("2 x 2 supersampling", 2, 1),
                ("3 x 3 supersampling", 3, 1))  # fmt: skip
-    return [product.measure("antialiasing", label, dataclasses.replace(frame, supersampling=k, multisamples=m),
-                            planned=(k, m) == planned) for label, k, m in choices]  # fmt: skip
+    return [product.either("antialiasing", label, (k, m) == planned,
+                           dataclasses.replace(frame, supersampling=k, multisamples=m))
+            for label, k, m in choices]  # fmt: skip
 
 
 def _soft_shadows(product: _Product) -> list[Setting]:
     frame = product.frame
     if not any(light.cast_shadows and light.softness > 0.0 for light in frame.lights):
         return [product.not_applicable("soft shadows", "no area light casts shadows")]
-    return [product.measure("soft shadows", label, dataclasses.replace(frame, soft_shadow_scale=scale),
-                            planned=scale == frame.soft_shadow_scale)
+    return [product.either("soft shadows", label, scale == frame.soft_shadow_scale,
+                           dataclasses.replace(frame, soft_shadow_scale=scale))
             for label, scale in (("at half resolution", 2), ("at every pixel", 1))]  # fmt: skip
 
 
@@ -188,15 +203,15 @@ def _shadow_map(product: _Product) -> list[Setting]:
     if not any(light.cast_shadows for light in frame.lights):
         return [product.not_applicable("shadow map", "no light casts shadows")]
     sizes = sorted({512, 1024, 2048, SHADOW_MAP_SIZES[1], frame.shadow_map_size})
-    return [product.measure("shadow map", f"{size} texels", dataclasses.replace(frame, shadow_map_size=size),
-                            planned=size == frame.shadow_map_size) for size in sizes]  # fmt: skip
+    return [product.either("shadow map", f"{size} texels", size == frame.shadow_map_size,
+                           dataclasses.replace(frame, shadow_map_size=size)) for size in sizes]  # fmt: skip
 
 
 def _scattering(product: _Product) -> list[Setting]:
     frame = product.frame
     if not product.on_skin or frame.scattering is None:
         return [product.not_applicable("subsurface scattering", "no skin (or its scattering is off)")]
-    return [product.measure("subsurface scattering", "on", frame, planned=True),
+    return [product.as_planned("subsurface scattering", "on"),
             product.measure("subsurface scattering", "off", dataclasses.replace(frame, scattering=None))]  # fmt: skip
 
 
@@ -208,19 +223,19 @@ def _environment(product: _Product) -> list[Setting]:
         return [product.not_applicable("environment", "no environment light")]
     full = frame.environment
     out = []
-    for width in (*ENVIRONMENT_WIDTHS, full.radiance.shape[1]):
-        if width > full.radiance.shape[1]:
+    for width in ENVIRONMENT_WIDTHS:
+        if width >= full.radiance.shape[1]:
             continue
         k = full.radiance.shape[1] // width
-        radiance = full.radiance if k == 1 else _box(np.asarray(full.radiance, np.float64), k).astype(np.float32)
+        radiance = _box(np.asarray(full.radiance, np.float64), k).astype(np.float32)
         smaller = dataclasses.replace(full, radiance=radiance)
         start = time.perf_counter()
         module.prefiltered(smaller)
         prefilter = time.perf_counter() - start
         out.append(product.measure("environment", f"{radiance.shape[1]} x {radiance.shape[0]} px",
-                                   dataclasses.replace(frame, environment=smaller), prefilter,
-                                   planned=k == 1))  # fmt: skip
-    return out
+                                   dataclasses.replace(frame, environment=smaller), prefilter))  # fmt: skip
+    rows, columns = full.radiance.shape[:2]
+    return [*out, product.as_planned("environment", f"{columns} x {rows} px")]
 
 
 def _resolution(product: _Product) -> list[Setting]:
@@ -233,7 +248,7 @@ def _resolution(product: _Product) -> list[Setting]:
     image = image[: reference.shape[0], : reference.shape[1]]
     mean, p95 = delta_e_stats(image, reference, mask)
     shift = delta_e_stats(image, _box(product.planned, 2), mask)[0]
-    full = dataclasses.replace(product.measure("resolution", "full", frame, planned=True), note=f"{width} x {height}")
+    full = product.as_planned("resolution", "full", note=f"{width} x {height}")
     note = f"{width // 2} x {height // 2}, against the frames box-filtered to that size"
     return [full, Setting(product.name, "resolution", "half", seconds, mean, p95, note=note, shift_de=shift)]
 
@@ -243,7 +258,7 @@ def _refits(product: _Product, manifests: dict[str, Path | None]) -> list[Settin
 
     if not manifests or any(path is None for path in manifests.values()):
         return [product.not_applicable("fit", "a material is given as a file: nothing to refit")]
-    out = [product.measure("fit", "as fitted (planned)", product.frame, planned=True)]
+    out = [product.as_planned("fit", "as fitted (planned)")]
     with tempfile.TemporaryDirectory(prefix="kmpipe-trade-") as folder:
         for label, grid, method in REFITS:
             start = time.perf_counter()
@@ -263,8 +278,7 @@ def trade_product(name: str, scene: Scene, rebuild: Callable[[dict], Scene],
     """Every knob's settings for one product (module docstring); ``rebuild(paths)`` gives its scene with materials
     from other files (name: path), ``manifests`` each material's manifest (None: given as a file)."""
     product = _Product(name, scene, rebuild)
-    planned = dataclasses.replace(product.measure("planned", "as planned", product.frame, planned=True),
-                                  note=_planned_label(product))  # fmt: skip
+    planned = product.as_planned("planned", "as planned", note=_planned_label(product))
     exact = dataclasses.replace(product.frame_of(_with_mode(scene, "exact")), supersampling=3, multisamples=1,
                                 soft_shadow_scale=1, shadow_map_size=SHADOW_MAP_SIZES[1])  # fmt: skip
     settings = [planned, product.measure("planned", "the reference (most exact)", exact)]
