@@ -96,6 +96,18 @@ def test_frames_keep_their_aspect_ratio_on_the_background(sheet):
     assert np.all(cell[:, :10] == BACKGROUND_CODE)
 
 
+def test_a_frame_shrunk_into_its_cell_takes_the_mean_of_each_pixel_area(tmp_path):
+    """Stripes one pixel wide (codes 0 and 255) shrunk 4 times are a uniform 127.5 (the mean of every 4 x 4 block),
+    not stripes aliased to a beat."""
+    stripes = np.zeros((160, 160, 3))
+    stripes[:, 1::2] = 1.0
+    write_png(tmp_path / "stripes.png", stripes)
+    buf = make_sheet([tmp_path / "stripes.png"], rows=[""], columns=[""], cell_size=(40, 40), margin=MARGIN)
+    x, y = sheet_layout([""], [""], cell_size=(40, 40), margin=MARGIN).cell_origin(0, 0)
+    cell = _pixels(buf)[y : y + 40, x : x + 40]
+    assert set(np.unique(cell)) <= {127, 128}
+
+
 def test_labels_and_header_are_drawn(sheet):
     buf, layout = sheet
     pixels = _pixels(buf)

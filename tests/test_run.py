@@ -29,6 +29,7 @@ from PIL import Image
 from kmpipe import cli
 from kmpipe.formats.spectra import read_spectra_csv
 from kmpipe.run.execute import execute
+from kmpipe.run.executors import THREAD_VARIABLES, make_executor, worker_environment
 from kmpipe.run.folder import LOCK
 from kmpipe.run.planning import FRAMES_PER_TASK, plan_run
 from renderer.image_io import read_exr, write_map
@@ -402,6 +403,32 @@ def test_other_executors_render_the_same_frames(tmp_path, reference, options):
     assert run(recipe, out, *options) == cli.EXIT_OK
     assert recorded(out) == ALL_TASKS
     assert_same_frames(out, reference[1])
+
+
+def test_worker_environment_shares_the_cores_and_keeps_what_the_user_set(monkeypatch):
+    cores = len(os.sched_getaffinity(0))
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    assert worker_environment(1) == dict.fromkeys(THREAD_VARIABLES, str(cores))
+    assert worker_environment(2 * cores) == dict.fromkeys(THREAD_VARIABLES, "1")  # at least one thread each
+    monkeypatch.setenv("LP_NUM_THREADS", "3")
+    assert "LP_NUM_THREADS" not in worker_environment(1)
+
+
+@pytest.mark.parametrize("kind", ["local", "dask"])
+def test_workers_start_with_their_share_and_this_process_keeps_its_environment(kind, monkeypatch):
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    before = dict(os.environ)
+    pool = make_executor(kind, 2, None)
+    try:
+        seen = {name: pool.submit(os.getenv, name) for name in (*THREAD_VARIABLES, "MALLOC_TRIM_THRESHOLD_")}
+        seen = {name: future.result() for name, future in seen.items()}
+    finally:
+        pool.close()
+    share = str(max(1, len(os.sched_getaffinity(0)) // 2))
+    assert seen == {**dict.fromkeys(THREAD_VARIABLES, share), "MALLOC_TRIM_THRESHOLD_": None}
+    assert dict(os.environ) == before
 
 
 # ---------------------------------------------------------------------------------------------------- dry run ---

@@ -23,6 +23,7 @@ from kmpipe.stages.fit import fit_manifests
 from kmpipe.stages.plan_file import plan_to_file, read_plan
 from kmpipe.stages.render import renderer_scenes
 from kmpipe.stages.render_plan import placed_bounds, plan_scene
+from kmpipe.stages.staging import floor_occlusion
 from renderer.image_io import read_exr, write_exr, write_map
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -263,6 +264,18 @@ def test_the_floor_under_a_product_in_an_environment_sees_the_sky_the_product_le
             np.testing.assert_array_equal(ao[outside], 1.0)
     (bare,) = renderer_scenes(scene := load_scene(write_scene(tmp_path, material, floor)), plan_scene(scene), [0.0])
     assert bare.props[0].occlusion is None and bare.props[0].floor_occlusion is None
+
+
+def test_a_floor_bake_is_kept_for_products_placed_alike_and_made_anew_for_another(tmp_path, material):
+    """Every render task of a line's products on one mesh shares one bake of the floor (kept per process); another
+    film changes nothing under the floor, another mesh or size does."""
+    extra = '[environment]\n[backdrop]\nkind = "sweep"'
+    first = floor_occlusion(load_scene(write_scene(tmp_path, material, extra, thickness="10 um")))
+    (tmp_path / "other").mkdir()
+    again = floor_occlusion(load_scene(write_scene(tmp_path / "other", material, extra, thickness="40 um")))
+    assert again is first and not first.values.flags.writeable
+    lipstick = floor_occlusion(load_scene(write_scene(tmp_path, material, extra, mesh="lipstick")))
+    assert lipstick is not first and not np.array_equal(lipstick.values, first.values)
 
 
 def test_a_gradient_backdrop_fills_the_frame_behind_the_product(tmp_path, material, capsys):

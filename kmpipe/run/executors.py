@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import multiprocessing
+import os
 import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -26,6 +27,20 @@ def call_task(function: Callable[..., dict], kwargs: dict, root: str | None = No
     except InputError as err:
         return {"input_error": {"message": err.message, "path": None if err.path is None else str(err.path),
                                 "line": err.line, "field": err.field}}  # fmt: skip
+
+
+#: The variables of the libraries that start a thread per core in every process: llvmpipe's rasterizer (Mesa) and
+#: the BLAS under numpy and scipy (OpenBLAS, or OpenMP or MKL builds).
+THREAD_VARIABLES = ("LP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def worker_environment(workers: int) -> dict[str, str]:
+    """The environment each of ``workers`` local worker processes starts with, beyond this one's: the cores this
+    process may use shared among the workers (at least one each) for llvmpipe's and the BLAS's threads, so that the
+    workers do not each run a thread per core and contend for them (OpenBLAS's idle threads spin); a variable the
+    user set is left as it is."""
+    share = str(max(1, len(os.sched_getaffinity(0)) // workers))
+    return {name: share for name in THREAD_VARIABLES if name not in os.environ}
 
 
 class _InProcess:
@@ -57,9 +72,13 @@ class _InProcess:
 
 
 class _Pool:
-    """A pool of spawned worker processes (a fork after a GL context exists hangs)."""
+    """A pool of spawned worker processes (a fork after a GL context exists hangs), each with its share of the cores
+    (:func:`worker_environment`: in this process's environment while the pool lives, since the pool spawns its
+    workers as tasks come, and they load the libraries that read it while they start)."""
 
     def __init__(self, workers: int) -> None:
+        self.environment = worker_environment(workers)
+        os.environ.update(self.environment)
         context = multiprocessing.get_context("spawn")
         self.pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
         self.capacity = 2 * workers
@@ -72,18 +91,40 @@ class _Pool:
         return concurrent.futures.wait(futures, return_when=concurrent.futures.FIRST_COMPLETED)
 
     def close(self) -> None:
-        self.pool.shutdown()
+        try:
+            self.pool.shutdown()
+        finally:
+            for name in self.environment:
+                os.environ.pop(name, None)
 
 
 class _Dask:
-    """A Dask distributed client: of the scheduler at ``address``, or of a local cluster of ``workers`` processes."""
+    """A Dask distributed client: of the scheduler at ``address``, or of a local cluster of ``workers`` processes (each
+    with its share of the cores for llvmpipe, :func:`worker_environment`)."""
 
     def __init__(self, address: str | None, workers: int) -> None:
+        import dask
         from distributed import Client, LocalCluster
 
         self.cluster = None
         if address is None:
-            self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            # The nanny sets its workers' environment before it spawns them (its pre-spawn-environ): the cores shared
+            # among them as in the local pool, and glibc's adaptive malloc kept. Dask's MALLOC_TRIM_THRESHOLD_ would
+            # also fix glibc's mmap threshold at 128 KiB: every frame-sized array mapped and unmapped anew, each page
+            # faulted in again (a fifth of a 16-product line's CPU time, in the kernel).
+            # The nanny also sets them in this process, where they would reach whatever it spawns later: restored.
+            before = "distributed.nanny.pre-spawn-environ."
+            settings = {before + "MALLOC_TRIM_THRESHOLD_": None}
+            settings.update({before + name: value for name, value in worker_environment(workers).items()})
+            saved = dict(os.environ)
+            try:
+                with dask.config.set(settings):
+                    self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                dashboard_address=None)  # fmt: skip
+            finally:
+                for name in set(os.environ) - set(saved):
+                    del os.environ[name]
+                os.environ.update(saved)
         try:
             self.client = Client(address or self.cluster.scheduler_address, timeout=10)
         except Exception as err:  # whatever Dask raises, the address is what to fix

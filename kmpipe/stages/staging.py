@@ -90,9 +90,28 @@ def eyes(scene: Scene, model: np.ndarray) -> tuple[Prop, ...]:
     return tuple(Prop(mesh, albedo, model) for mesh, (_, albedo) in zip(_eye_meshes(), EYES, strict=True))
 
 
-#: Bakes kept per process (:func:`occlusion`), the oldest dropped first.
+#: Bakes kept per process (:func:`occlusion`, :func:`floor_occlusion`), the oldest dropped first.
 KEPT_BAKES = 8
-_bakes: dict[bytes, np.ndarray] = {}
+_bakes: dict[bytes, object] = {}
+
+
+def _kept(meshes, settings: tuple, bake):
+    """``bake()``, kept per process for meshes of the same vertices, normals and faces and the same ``settings``."""
+    digest = hashlib.sha1(repr(settings).encode(), usedforsecurity=False)
+    for mesh in meshes:
+        for values in (mesh.vertices, mesh.vertex_normals, mesh.faces):
+            digest.update(np.ascontiguousarray(values).tobytes())
+    key = digest.digest()
+    if key not in _bakes:
+        while len(_bakes) >= KEPT_BAKES:
+            _bakes.pop(next(iter(_bakes)))
+        _bakes[key] = bake()
+    return _bakes[key]
+
+
+def _frozen(values: np.ndarray) -> np.ndarray:
+    values.setflags(write=False)
+    return values
 
 
 def occlusion(scene: Scene) -> np.ndarray:
@@ -101,17 +120,7 @@ def occlusion(scene: Scene) -> np.ndarray:
     uv (bilinear). The bake is in the mesh's own frame: it is kept per process for meshes of the same vertices,
     normals and faces (every row of a shade review, every product of a line on the bundled head)."""
     others = [prop.mesh for prop in eyes(scene, np.eye(4))]
-    digest = hashlib.sha1(usedforsecurity=False)
-    for mesh in (scene.mesh, *others):
-        for values in (mesh.vertices, mesh.vertex_normals, mesh.faces):
-            digest.update(np.ascontiguousarray(values).tobytes())
-    key = digest.digest()
-    if key not in _bakes:
-        while len(_bakes) >= KEPT_BAKES:
-            _bakes.pop(next(iter(_bakes)))
-        _bakes[key] = vertex_occlusion(scene.mesh, others)
-        _bakes[key].setflags(write=False)
-    baked = _bakes[key]
+    baked = _kept([scene.mesh, *others], ("mesh",), lambda: _frozen(vertex_occlusion(scene.mesh, others)))
     if scene.occlusion_map is None:
         return baked
     return baked * np.clip(at_uv(scene.occlusion_map, np.asarray(scene.mesh.visual.uv)), 0.0, 1.0)
@@ -120,14 +129,21 @@ def occlusion(scene: Scene) -> np.ndarray:
 def floor_occlusion(scene: Scene) -> FloorOcclusion | None:
     """The ambient occlusion of the floor (the scene's ground or sweep, :func:`floor_prop`) by the unturned product
     and its eyes, within :data:`~kmpipe.formats.scene_lighting.FLOOR_EXTENT` radii of its centre; None without an
-    environment light (the only light it darkens)."""
+    environment light (the only light it darkens). Kept per process for products placed alike (every render task of
+    a line's products of one mesh)."""
     if scene.info.environment is None:
         return None
     centre, radius, bottom = placed_bounds(scene)
     product = [scene.mesh.copy().apply_transform(scene.model)]
     product += [prop.mesh.copy().apply_transform(prop.model) for prop in eyes(scene, scene.model)]
-    return bake_floor(product, bottom, (float(centre[0]), float(centre[2])), FLOOR_EXTENT * radius,
-                      FLOOR_FADE * radius)  # fmt: skip
+    floor = (bottom, (float(centre[0]), float(centre[2])), FLOOR_EXTENT * radius, FLOOR_FADE * radius)
+
+    def bake() -> FloorOcclusion:
+        baked = bake_floor(product, *floor)
+        _frozen(baked.values)
+        return baked
+
+    return _kept(product, ("floor", *floor), bake)
 
 
 def turned_floor(scene: Scene, floor: Prop, baked: FloorOcclusion, model: np.ndarray) -> Prop:
