@@ -265,6 +265,22 @@ def test_curtis_matches_mp_arcoth_form_at_tiny_black_reading(X):
     np.testing.assert_allclose(S2, S_ref, rtol=1e-14)
 
 
+def test_nearly_white_films_match_50_digits_where_artanh_w_over_w_is_near_one():
+    """K/S from 1e-14 to 1e-3 puts w = b D / N_y between about 1e-7 and 0.04, where artanh(w) / w is within 1e-3 of 1
+    (a two-term series there was off by up to 2e-13); readings made at 50 digits, S to 1e-13, K to the rounding of
+    N_u (1e-15 S: K/S is a difference of products of readings near 1)."""
+    ks = np.concatenate([np.geomspace(1e-14, 1e-3, 23), np.linspace(5e-7, 6.15e-7, 6)])  # then w 0.9e-3 .. 1e-3
+    S, X, Gb, Gw = 30.0, 0.03, 0.04, 0.85
+    K = ks * S
+    Rob = ref.vec(ref.reflectance, K, S, X, Gb)
+    Row = ref.vec(ref.reflectance, K, S, X, Gw)
+    result = inv.black_white(Rob, Row, Gb, Gw, X)
+    K_ref, S_ref = ref.vec(ref.black_white_inverse, Rob, Row, Gb, Gw, X, nout=2)
+    assert np.all(result.flags == 0)
+    np.testing.assert_allclose(result.S, S_ref, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(result.K, K_ref, rtol=1e-13, atol=1e-15 * S)
+
+
 # ---------------------------------------------------------------------------------------------
 # limits and ill-conditioned readings
 # ---------------------------------------------------------------------------------------------

@@ -30,6 +30,8 @@ OPAQUE_TOLERANCE = 1e-3
 _MIN_REFLECTANCE = 1e-9
 #: ... and the K/S that goes with it (K/S of a perfect absorber is infinite).
 _MAX_KS = float((1.0 - _MIN_REFLECTANCE) ** 2 / (2.0 * _MIN_REFLECTANCE))
+#: The smallest normal float64.
+_TINY = float(np.finfo(np.float64).tiny)
 #: Elements per block in :func:`black_white` (fits the working set in a 2 MB cache).
 _BLOCK = 16384
 #: K and S that would exceed this (a thickness near 0 for the readings) are set to it and flagged OUT_OF_RANGE.
@@ -101,11 +103,14 @@ def _opaque_lower_bound_sx(ks, R_g_dark, R_g_light, tolerance: float) -> np.ndar
 
 
 def _artanhc_near_one(w: np.ndarray, one_minus_w2: np.ndarray) -> np.ndarray:
-    """artanh(w) / w for 0 <= w <= 1 given 1 - w^2 > 0 accurately: series below 1e-3, else
-    [log1p(w) - ln(1 - w^2) / 2] / w, finite (at most 355) however close w is to 1."""
-    small = w < 1e-3
-    safe = np.where(small, 1.0, w)
-    return np.where(small, 1.0 + w * w / 3.0, (np.log1p(safe) - 0.5 * np.log(one_minus_w2)) / safe)
+    """artanh(w) / w for 0 <= w <= 1 given 1 - w^2 > 0 accurately: numpy's artanh below 1/2 (w = 0 taken as the
+    smallest normal float, where artanh(w) = w: the limit 1), else [log1p(w) - ln(1 - w^2) / 2] / w, finite (at most
+    355) however close w is to 1."""
+    low = w < 0.5
+    small = np.where(low, np.maximum(w, _TINY), 0.5)
+    large = np.where(low, 0.5, w)
+    near_one = (np.log1p(large) - 0.5 * np.log(np.where(low, 0.75, one_minus_w2))) / large
+    return np.where(low, np.arctanh(small) / small, near_one)
 
 
 def _capped_ratio(numerator: np.ndarray, denominator: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -124,8 +129,8 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     The inputs are broadcast as views (a scalar backing or a per-wavelength array is never copied to
     full size) and seen as rows of their last axis; blocks of about `_BLOCK` elements keep every
     temporary in cache. ``regular(*blocks, tolerance, K, S, ks, flags)`` fills the output blocks and returns
-    a mask of the elements it cannot do (flagged, limiting or out-of-range ones); after all blocks,
-    ``careful(*values, tolerance)`` returns K, S, K/S and flags for those, in one call.
+    a mask of the elements it cannot do (flagged, limiting or out-of-range ones); their places are kept per block,
+    and after all blocks ``careful(*values, tolerance)`` returns K, S, K/S and flags for those, in one call.
     """
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
     shape = arrays[0].shape
@@ -134,14 +139,18 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     count = rows[0].shape[0]
     K, S, ks = (np.empty((count, last)) for _ in range(3))
     flags = np.zeros((count, last), dtype=np.uint8)
-    hard = np.empty((count, last), dtype=bool)
     step = max(1, _BLOCK // last)
+    hard_rows, hard_columns = [], []
 
     for lo in range(0, count, step):
         block = slice(lo, lo + step)
-        hard[block] = regular(*(r[block] for r in rows), tolerance, K[block], S[block], ks[block], flags[block])
-    where = np.nonzero(hard)
-    if where[0].size:
+        hard = regular(*(r[block] for r in rows), tolerance, K[block], S[block], ks[block], flags[block])
+        if hard.any():
+            where = np.nonzero(hard)
+            hard_rows.append(where[0] + lo)
+            hard_columns.append(where[1])
+    if hard_rows:
+        where = (np.concatenate(hard_rows), np.concatenate(hard_columns))
         K[where], S[where], ks[where], flags[where] = careful(*(r[where] for r in rows), tolerance)
     return Inversion(K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape))
 
@@ -185,20 +194,24 @@ def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks, flags):
     log1p(delta)/delta needs its series): :func:`_two_constant_careful` redoes those.
     """
     with np.errstate(all="ignore"):
-        inverse = 1.0 / R_inf
+        inverse = np.divide(1.0, R_inf)
         two_b = inverse - R_inf  # (1 - R_inf)(1 + R_inf) / R_inf
         np.subtract(1.0, R_inf, out=ks)
         ks *= ks
-        ks *= 0.5 * inverse  # (1 - R_inf)^2 / (2 R_inf)
-        delta = R - R_g
+        ks *= inverse
+        ks *= 0.5  # (1 - R_inf)^2 / (2 R_inf)
+        limit = tolerance * R_inf
+        gap = R_inf - R
+        irregular = np.abs(gap) <= limit  # opaque
+        delta = R_inf - R_g
+        np.abs(delta, out=delta)
+        irregular |= delta <= limit  # no contrast
+        np.subtract(R, R_g, out=delta)
         inverse -= R_g
-        inverse *= R_inf - R
+        inverse *= gap
         delta /= inverse
         delta *= two_b
-        irregular = ~((delta >= 1e-4) & (R_inf >= _MIN_REFLECTANCE) & (R_inf <= 1.0))
-        limit = tolerance * R_inf
-        irregular |= np.abs(R_inf - R_g) <= limit
-        irregular |= np.abs(R_inf - R) <= limit
+        irregular |= ~((delta >= 1e-4) & (R_inf >= _MIN_REFLECTANCE) & (R_inf <= 1.0))
         np.log1p(delta, out=S)
         two_b *= X
         S /= two_b
@@ -321,8 +334,10 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
         Ny = s_w * c_b
         Ny -= s_b * c_w
         irregular = ~(D > 1e-12 * first)
-        flags[K < -1e-12 * D] = np.uint8(Flag.AT_BOUND)  # beyond rounding: the readings asked for K < 0
-        flags[K < -tolerance * D] = np.uint8(Flag.OUT_OF_RANGE)
+        negative = K < -1e-12 * D  # beyond rounding: the readings asked for K < 0
+        if negative.any():  # flags is 0 here: AT_BOUND where negative, OUT_OF_RANGE where below -tolerance
+            np.multiply(negative.view(np.uint8), np.uint8(Flag.AT_BOUND), out=flags)
+            np.copyto(flags, np.uint8(Flag.OUT_OF_RANGE), where=K < -tolerance * D)
         np.maximum(K, 0.0, out=K)
         b_num = 2.0 * D
         b_num += K
@@ -331,12 +346,10 @@ def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
         irregular |= ~(Ny > b_num)  # y > b >= 0: a finite, positive S X
         w = b_num / Ny
         irregular |= np.abs(Rw - Rb) <= tolerance * Rw
+        # artanh(w) / w: w = 0 (K = 0) taken as the smallest normal float, where artanh(w) = w exactly (the limit 1)
+        np.maximum(w, _TINY, out=w)
         factor = np.arctanh(w)
-        factor /= w  # artanh(w) / w, nan at w = 0: mended below
-        small = w < 1e-3
-        if small.any():
-            w_small = w[small]
-            factor[small] = 1.0 + w_small * w_small / 3.0
+        factor /= w
         factor /= X
         np.divide(K, D, out=ks)
         np.minimum(ks, _MAX_KS, out=ks)
