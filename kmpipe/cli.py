@@ -404,6 +404,12 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     )
     if summary.sheet is not None:
         console.print(f"contact sheet: {summary.sheet}", highlight=False, markup=False, soft_wrap=True)
+    if args.explain:
+        for task in plan.tasks.values():
+            if task.kind == "plan" and task.state in ("run", "cached"):
+                lines = files.read_json(out_dir / task.outputs[0], "JSON", "kmpipe render plan")["explain"]
+                console.print(f"\nRender plan of {task.product}:", highlight=False, markup=False)
+                console.print("\n".join(lines), highlight=False, markup=False, soft_wrap=True)
     if summary.reports is not None:
         console.print(f"validation reports: {summary.reports}", highlight=False, markup=False, soft_wrap=True)
     if summary.failed:
@@ -491,7 +497,15 @@ def _cmd_trade(args: argparse.Namespace, console: Console) -> int:
         verdict = "as planned" if chosen == row.value else f"planned: {chosen}"
         console.print(f"cheapest within ΔE00 {result.target:g}: {knob} = {row.value} ({verdict})", highlight=False,
                       markup=False)  # fmt: skip
-    console.print(f"wrote {', '.join(str(path) for path in result.files)}", highlight=False, markup=False,
+    for product, choice in result.choices.items():
+        settings = ", ".join(f"{knob} {value}" for knob, value in (
+            ("antialiasing", choice.antialiasing), ("shadow map", choice.shadow_map),
+            ("subsurface scattering", choice.scattering)) if value is not None)  # fmt: skip
+        console.print(f"frame settings for {product}: {settings} (ΔE00 p95 {choice.p95_de:.3f} against them at their "
+                      f"most exact; mean {choice.reference_de:.3f} against the reference; {choice.seconds:.2f} s)",
+                      highlight=False, markup=False)  # fmt: skip
+    console.print(f"wrote {', '.join(str(path) for path in result.files)}; kmpipe run into {out_dir} plans each "
+                  "product's frames with its frame settings", highlight=False, markup=False,
                   soft_wrap=True)  # fmt: skip
     return EXIT_OK
 
@@ -726,6 +740,12 @@ def build_parser() -> argparse.ArgumentParser:
     _graph_options(run)
     run.add_argument("--only", nargs="+", metavar="PRODUCT", help="these products (and the materials they use)")
     run.add_argument("--keep-going", action="store_true", help="render products that failed validation, marked")
+    run.add_argument(
+        "--explain",
+        action="store_true",
+        help="print each product's render plan after the run: modes, tables, shadows, antialiasing, subsurface "
+        "scattering, and whether kmpipe trade chose them",
+    )
     run.set_defaults(run=_cmd_run)
 
     review = commands.add_parser(

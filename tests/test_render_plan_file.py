@@ -220,6 +220,11 @@ DAMAGES = {
     "another material file": (_set(("layers", 0, "sha256"), "0" * 64), "layers"),
     "other lights": (_set(("shadow_lights",), [True, False]), "shadow_lights"),
     "an unknown antialiasing": (_set(("antialiasing",), "fxaa"), "antialiasing"),
+    "samples a pixel beyond the renderer's": (_set(("antialias_side",), 9), "antialias_side"),
+    "samples that are not the antialiasing's": (
+        lambda d: d.update(antialiasing="none", antialias_side=2),
+        "antialias_side",
+    ),
 }
 
 

@@ -10,16 +10,34 @@ environment; no area light) is reported not applicable, never measured.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
+import shutil
 
 import colour
 import numpy as np
 import pytest
-from test_run import make_line
+from test_run import edit, make_line
 
 from kmpipe.cli import main
+from kmpipe.formats.recipe import load_recipe, slug
+from kmpipe.formats.scene import load_scene
+from kmpipe.run.folder import PRODUCTS
 from kmpipe.run.trade import trade_line
-from kmpipe.stages.trade import KNOBS, Setting, aggregate, cheapest_within, delta_e_stats
+from kmpipe.stages.frame_choice import apply_choice, free_knobs, scene_fingerprint
+from kmpipe.stages.render_plan import plan_scene
+from kmpipe.stages.trade import (
+    KNOBS,
+    Setting,
+    _Product,
+    _with_settings,
+    aggregate,
+    cheapest_within,
+    delta_e_stats,
+    rebuild_for,
+)
+from kmpipe.stages.trade_files import write_trade
+from renderer.image_io import read_exr
 
 pytestmark = pytest.mark.filterwarnings("ignore:Aligning:colour.utilities.ColourRuntimeWarning")
 
@@ -127,3 +145,117 @@ def test_the_command_prints_the_table_and_refuses_an_unknown_product(traded, cap
     assert "kmpipe trade: Test line" in out and "the reference (most exact)" in out and "as planned:" in out
     assert main(["trade", str(recipe), "-o", str(folder / "out"), "--only", "Nothing"]) == 2
     assert "--only" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------- frame settings ---
+
+
+def _product(recipe_path, out, name) -> _Product:
+    """The trade's view of product ``name`` of the line, its materials those made in ``out``."""
+    recipe = load_recipe(recipe_path)
+    index = [p.name for p in recipe.info.product].index(name)
+    layers = recipe.info.product[index].layer
+    owners = [name if layer.get("material") == "self" else layer["material"] for layer in layers]
+    rebuild = rebuild_for(recipe, index)
+    return _Product(name, rebuild({o: out / PRODUCTS / slug(o) / "material.json" for o in owners}), rebuild)
+
+
+def _p95(product: _Product, settings: dict, against: np.ndarray) -> float:
+    image = product.render_once(_with_settings(product, settings))
+    return delta_e_stats(image, against, product.mask)[1]
+
+
+def test_each_product_gets_the_frame_settings_its_target_allows_found_as_documented(traded):
+    """Against the frame with the free knobs at their most exact, the choice re-measured keeps 95 % of the product's
+    pixels within the target; and, knob by knob in the documented order (earlier knobs as chosen, later ones at their
+    most exact), every cheaper setting than the one chosen does not."""
+    folder, recipe, result = traded
+    assert set(result.choices) == {"Foundation F1", "Lipstick L1", "Face"}
+    for name, choice in result.choices.items():
+        product = _product(recipe, folder / "out", name)
+        knobs = free_knobs(product.scene, product.plan)
+        assert set(knobs) == ({"antialiasing", "shadow map", "subsurface scattering"} if name == "Face" else
+                              {"antialiasing", "shadow map"})  # fmt: skip
+        chosen = {"antialiasing": choice.antialiasing, "shadow map": choice.shadow_map,
+                  "subsurface scattering": choice.scattering}  # fmt: skip
+        chosen = {knob: chosen[knob] for knob in knobs}
+        assert choice.scene_sha256 == scene_fingerprint(product.scene) and choice.target_de == 0.5
+        best = product.render_once(_with_settings(product, {k: options[-1] for k, options in knobs.items()}))
+        assert _p95(product, chosen, best) == pytest.approx(choice.p95_de, abs=1e-9) and choice.p95_de <= 0.5
+        order = list(knobs)
+        for position, knob in enumerate(order):
+            options = knobs[knob]
+            for cheaper in options[: options.index(chosen[knob])]:
+                settings = {**{k: chosen[k] for k in order[:position]}, knob: cheaper,
+                            **{k: knobs[k][-1] for k in order[position + 1 :]}}  # fmt: skip
+                assert _p95(product, settings, best) > 0.5, (name, knob, cheaper)
+
+
+def test_kmpipe_run_plans_each_product_with_its_frame_settings_and_says_so(traded, tmp_path, capsys):
+    folder, recipe, result = traded
+    line, out = tmp_path / "line", tmp_path / "out"
+    shutil.copytree(recipe.parent, line)
+    shutil.copytree(folder / "out", out)
+    # the fixture's choices (another test may have traded one product alone into its folder)
+    write_trade(out / "trade", result.line, result.target, result.settings, result.rows, result.chosen,
+                result.choices)  # fmt: skip
+    assert main(["run", str(line / "recipe.toml"), "-o", str(out), "--explain"]) == 0
+    printed = capsys.readouterr().out
+    for name, choice in result.choices.items():
+        plan = json.loads((out / "frames" / slug(name) / "plan.json").read_text(encoding="utf-8"))
+        method, side = {"4 x multisampling": ("multisample", 2), "2 x 2 supersampling": ("supersample", 2),
+                        "3 x 3 supersampling": ("supersample", 3)}[choice.antialiasing]  # fmt: skip
+        assert (plan["antialiasing"], plan["antialias_side"]) == (method, side)
+        assert plan["shadow_map_size"] == choice.shadow_map
+        assert (plan["scattering"] is None) == (name != "Face" or choice.scattering == "off")
+        assert any("measured by kmpipe trade" in line for line in plan["explain"])
+        _, header = read_exr(out / "frames" / slug(name) / "frame_000.exr")
+        assert header["antialias"] == choice.antialiasing
+    assert printed.count("measured by kmpipe trade on this product's frame") == 3
+
+    # another version of a product's scene: its choice is not used, and the plan says why
+    edit(line / "recipe.toml", 'thickness = "1 mm", specular', 'thickness = "0.8 mm", specular')
+    assert main(["run", str(line / "recipe.toml"), "-o", str(out), "--only", "Lipstick L1"]) == 0
+    plan = json.loads((out / "frames" / "lipstick-l1" / "plan.json").read_text(encoding="utf-8"))
+    assert any("measured on another version of this scene" in line for line in plan["explain"])
+    assert plan["antialias_side"] is None
+
+
+def test_a_damaged_trade_file_stops_kmpipe_run_naming_the_field(traded, tmp_path, capsys):
+    _, recipe, result = traded
+    out = tmp_path / "out"
+    (out / "trade").mkdir(parents=True)
+    write_trade(out / "trade", result.line, result.target, result.settings, result.rows, result.chosen,
+                result.choices)  # fmt: skip
+    path = out / "trade" / "trade.json"
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    doc["frame_settings"]["Face"]["shadow_map"] = 777
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    assert main(["run", str(recipe), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "frame_settings.Face.shadow_map" in err and "trade.json" in err
+
+
+def test_what_the_scene_sets_itself_stays_the_scenes(traded, tmp_path):
+    folder, _, result = traded
+    material = folder / "out" / PRODUCTS / "foundation-f1" / "material.json"
+    base = (f'[scene]\nname = "F1"\nmesh = "compact"\nresolution = [32, 32]\n{{scene}}[substrate]\nreflectance = 0.8\n'
+            f'[[layer]]\nmaterial = "{material}"\nthickness = "40 um"\n[[light]]\ndirection = [0.4, 0.8, 0.6]\n'
+            '[ground]\nreflectance = 0.35\n{output}')  # fmt: skip
+    path = tmp_path / "scene.toml"
+    for extra_scene, output, free in (
+        ("", "", {"antialiasing", "shadow map"}),
+        ("shadow_map = 1024\n", "", {"antialiasing"}),
+        ("", "[output]\nantialias = 2\n", {"shadow map"}),
+        ("", '[output]\nantialias_method = "supersample"\n', {"shadow map"}),
+    ):
+        path.write_text(base.format(scene=extra_scene, output=output), encoding="utf-8")
+        scene = load_scene(path)
+        plan = plan_scene(scene)
+        assert set(free_knobs(scene, plan)) == free
+        choice = dataclasses.replace(result.choices["Foundation F1"], scene_sha256=scene_fingerprint(scene),
+                                     antialiasing="2 x 2 supersampling", shadow_map=512)  # fmt: skip
+        applied = apply_choice(plan, scene, choice)
+        assert (applied.shadow_map_size == 512) == ("shadow map" in free)
+        assert (applied.antialias_side == 2 and applied.antialiasing == "supersample") == ("antialiasing" in free)
+        assert applied.shadow_map_size in (512, plan.shadow_map_size)

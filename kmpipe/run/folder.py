@@ -37,6 +37,10 @@ LOCK = STATE / "lock"
 PRODUCTS = Path("products")
 
 
+#: Where ``kmpipe trade`` writes its files, under the output folder (``kmpipe run`` reads its frame settings there).
+TRADE = Path("trade")
+
+
 #: Names of the temporary files kmpipe's writers make beside their targets (deleted at the start of a run): every
 #: atomic writer (kmpipe.formats.atomic_write, renderer.atomic_write, instruments.atomic_write) names them
 #: ``.NAME.<16 hex>.tmp``.

@@ -3,6 +3,7 @@ write (every path resolved inside the output folder, no two tasks colliding)."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import math
@@ -14,7 +15,7 @@ from pathlib import Path
 from kmpipe.errors import InputError
 from kmpipe.formats.files import is_regular, read_text, sha256, within
 from kmpipe.formats.recipe import Recipe, inside, load_recipe, render_contexts, slug
-from kmpipe.run.folder import LOCK, PRODUCTS, RECORDS, RECORDS_OWNER, STATE
+from kmpipe.run.folder import LOCK, PRODUCTS, RECORDS, RECORDS_OWNER, STATE, TRADE
 from kmpipe.run.tasks import (
     PLAN_FILE,
     Task,
@@ -66,6 +67,17 @@ class RunPlan:
         outputs = self.recipe.info.outputs
         return [self.out_dir / PRODUCTS, self.out_dir / STATE, self.out_dir / outputs.frames,
                 self.out_dir / outputs.reports]  # fmt: skip
+
+
+def _frame_choices(out_dir: Path) -> dict:
+    """The frame settings ``kmpipe trade`` chose for the line's products in this output folder (product: choice,
+    :mod:`kmpipe.stages.frame_choice`); {} where it has not been run."""
+    path = out_dir / TRADE / "trade.json"
+    if not os.path.lexists(path):
+        return {}
+    from kmpipe.stages.trade_files import read_frame_choices
+
+    return read_frame_choices(within(out_dir, path, field="-o"))
 
 
 def record_path(out_dir: Path, task_id: str) -> Path:
@@ -274,6 +286,7 @@ def plan_run(
                      (rel(report),)), whose, "outputs.reports")  # fmt: skip
 
     rows = []
+    choices = _frame_choices(out_dir)
     for product in info.product:
         if review_only or not product.layer or product.name not in (set(only) or set(names)):
             continue
@@ -290,10 +303,13 @@ def plan_run(
         claims.folder(rel(folder), whose, "outputs.frames", own=True)
         # The plan: keyed by what the renders read, written once beside the frames; every render task reads it.
         plan_id, plan_file = f"plan:{slug(product.name)}", folder / PLAN_FILE
-        plan_key = task_key("plan", _without_videos(data), files, upstream)
+        choice = choices.get(product.name)  # the frame settings kmpipe trade measured for it, if it did
+        choice = None if choice is None else dataclasses.asdict(choice)
+        plan_key = task_key("plan", _without_videos(data), files, upstream, choice)
         scene_args = {"recipe": str(recipe.path), "product": product.name, "materials": materials}
         add(Task("plan", slug(product.name), product.name, deps + checks, plan_key, (rel(plan_file),),
-                 do_plan, {**scene_args, "out": str(plan_file)}, (rel(folder),)), whose, "outputs.frames")  # fmt: skip
+                 do_plan, {**scene_args, "out": str(plan_file), "choice": choice}, (rel(folder),)), whose,
+            "outputs.frames")  # fmt: skip
         chunks = []
         for start in range(0, frame_count, FRAMES_PER_TASK):
             frames = list(range(start, min(start + FRAMES_PER_TASK, frame_count)))

@@ -143,12 +143,15 @@ def _product_scene(recipe: str, product: str, materials: dict):
     return build_scene(data, loaded.path, loaded.base, loaded.scene_where(index))
 
 
-def do_plan(recipe: str, product: str, materials: dict, out: str) -> dict:
-    """Plan a product's render and write its plan file ``out``; the chosen mode."""
+def do_plan(recipe: str, product: str, materials: dict, out: str, choice: dict | None = None) -> dict:
+    """Plan a product's render, with the frame settings ``kmpipe trade`` chose for it (``choice``, the fields of a
+    :class:`kmpipe.stages.frame_choice.FrameChoice`, or None), and write its plan file ``out``; the chosen mode."""
+    from kmpipe.stages.frame_choice import FrameChoice
     from kmpipe.stages.plan_file import plan_to_file
 
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    return {"mode": plan_to_file(_product_scene(recipe, product, materials), Path(out)).mode}
+    measured = None if choice is None else FrameChoice(**choice)
+    return {"mode": plan_to_file(_product_scene(recipe, product, materials), Path(out), measured).mode}
 
 
 def do_render(recipe: str, product: str, materials: dict, plan: str, out: str, frames: list[int], header: dict) -> dict:

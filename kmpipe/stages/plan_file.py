@@ -19,7 +19,6 @@ one planned for another scene is an :class:`~kmpipe.errors.InputError` naming th
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from pathlib import Path
 from typing import Annotated, Literal
@@ -33,17 +32,19 @@ from kmpipe.formats.atomic_write import write_text_atomically
 from kmpipe.formats.scene import MAX_LAYERS, Scene
 from kmpipe.formats.toml_input import first_validation_error, format_field
 from kmpipe.physics.optical_tables import Stack, parse_mode
+from kmpipe.stages.frame_choice import FrameChoice, apply_choice, scene_fingerprint
 from kmpipe.stages.render_plan import MAX_SAMPLES, ModeCandidate, RenderPlan, ScenePlan, TableSize, plan_scene
-from renderer.scene import Scattering
+from renderer.scene import MAX_SUPERSAMPLING, Scattering
 from renderer.stack import MAX_CHANNELS, Specular
 
 #: The value of the ``format`` field: kmpipe's render plan, version 1.
 PLAN_FORMAT = "kmpipe-render-plan/1"
 
 
-def plan_to_file(scene: Scene, path: str | Path) -> ScenePlan:
-    """The plan stage: plan ``scene`` (:func:`~kmpipe.stages.render_plan.plan_scene`) and write its plan file to
-    ``path`` (atomically); the plan.
+def plan_to_file(scene: Scene, path: str | Path, choice: FrameChoice | None = None) -> ScenePlan:
+    """The plan stage: plan ``scene`` (:func:`~kmpipe.stages.render_plan.plan_scene`), with the frame settings
+    ``kmpipe trade`` chose for it (:func:`kmpipe.stages.frame_choice.apply_choice`; None: none measured), and write
+    its plan file to ``path`` (atomically); the plan.
 
     >>> import kmpipe, pathlib, tempfile
     >>> from kmpipe.formats.scene import load_scene
@@ -60,7 +61,7 @@ def plan_to_file(scene: Scene, path: str | Path) -> ScenePlan:
     >>> again.mode, again.explain() == plan.explain()
     ('rgb', True)
     """
-    plan = plan_scene(scene)
+    plan = apply_choice(plan_scene(scene), scene, choice)
     write_plan(plan, scene, path)
     return plan
 
@@ -93,19 +94,11 @@ def write_plan(plan: ScenePlan, scene: Scene, path: str | Path) -> None:
         "scattering": None if plan.scattering is None else dataclasses.asdict(plan.scattering),
         "ambient_occlusion": plan.ambient_occlusion,
         "antialiasing": plan.antialiasing,
+        "antialias_side": plan.antialias_side,
         "notes": list(plan.notes),
         "explain": plan.explain().split("\n"),
     }
     write_text_atomically(Path(path), json.dumps(document, indent=1, allow_nan=False) + "\n")
-
-
-def scene_fingerprint(scene: Scene) -> str:
-    """SHA-256 (hex) of a scene's fields, each layer's material by the SHA-256 of its file: what tells the plan of
-    one scene from that of another (another product of a line, another mesh, other lights), wherever its files lie."""
-    fields = scene.info.model_dump(mode="json")
-    for layer, sha256 in zip(fields["layer"], scene.material_hashes, strict=True):
-        layer["material"] = sha256
-    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
 
 
 # ------------------------------------------------------------------------------------------------------ reading ---
@@ -182,6 +175,7 @@ class _PlanFile(_Strict):
     scattering: _Scattering | None
     ambient_occlusion: bool
     antialiasing: Literal["none", "multisample", "supersample"] = "supersample"  # (older plans: supersample)
+    antialias_side: int | None = Field(default=None, ge=1, le=MAX_SUPERSAMPLING)  # (older plans: the scene's)
     notes: list[str]
     explain: list[str]
 
@@ -272,10 +266,14 @@ def _checked(fields: _PlanFile, path: Path) -> ScenePlan:
         tuple(TableSize(**t.model_dump()) for t in fields.tables),
         tuple(fields.dropped),
     )
+    side = fields.antialias_side
+    if side is not None and ((fields.antialiasing == "none") != (side == 1) or
+                             (fields.antialiasing == "multisample" and side != 2)):  # fmt: skip
+        raise _damaged(path, "antialias_side", "1 exactly without antialiasing, 2 (4 samples) with multisampling")
     lobe = None if fields.skin_lobe is None else Specular(**fields.skin_lobe.model_dump())
     scattering = None if fields.scattering is None else Scattering(**fields.scattering.model_dump())
     plan = ScenePlan(tables, fields.shadow_map_size, tuple(fields.shadow_lights), lobe, scattering, tuple(fields.notes),
-                     fields.ambient_occlusion, fields.antialiasing)  # fmt: skip
+                     fields.ambient_occlusion, fields.antialiasing, fields.antialias_side)  # fmt: skip
     if plan.explain() != "\n".join(fields.explain):
         raise _damaged(path, "explain", "it is not the explanation of the plan's other fields")
     return plan

@@ -87,7 +87,7 @@ def renderer_scenes(
         "substrate_lobe": plan.skin_lobe,
         "scattering": plan.scattering if scattering else None,
         "shadow_map_size": plan.shadow_map_size or SHADOW_MAP_SIZES[0],
-        **antialiasing.renderer_fields(plan.antialiasing, info.output.antialias),
+        **antialiasing.renderer_fields(plan.antialiasing, plan.antialias(scene)),
         "background": staging.background(scene),
         "environment": staging.environment(scene),
         "occlusion": (staging.occlusion(scene) if occlusion is None else occlusion) if plan.ambient_occlusion else None,
@@ -321,7 +321,7 @@ def render_scene(
         "illuminant": info.scene.illuminant,
         "camera_elevation_deg": float(info.camera.elevation_deg),
         "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
-        "antialias": antialiasing.describe(plan.antialiasing, info.output.antialias),
+        "antialias": antialiasing.describe(plan.antialiasing, plan.antialias(scene)),
     }
     blur = plan.scattering if scattering else None
     header["subsurface_scattering"] = (

@@ -285,6 +285,9 @@ class ScenePlan:
     antialiasing
         How the frames take their ``[output] antialias`` samples: "none", "multisample" or "supersample"
         (:mod:`kmpipe.stages.antialiasing`).
+    antialias_side
+        Samples a pixel per side (k: k x k) where the plan sets them (a choice measured by ``kmpipe trade``,
+        :mod:`kmpipe.stages.frame_choice`); None: the scene's ``[output] antialias``.
     """
 
     tables: RenderPlan
@@ -295,10 +298,15 @@ class ScenePlan:
     notes: tuple[str, ...] = field(default=())
     ambient_occlusion: bool = False
     antialiasing: Method = "supersample"
+    antialias_side: int | None = None
 
     @property
     def mode(self) -> str:
         return self.tables.mode
+
+    def antialias(self, scene: Scene) -> int:
+        """Samples a pixel per side the frames take: the plan's, else the scene's ``[output] antialias``."""
+        return self.antialias_side or scene.info.output.antialias
 
     def explain(self) -> str:
         """What ``kmpipe render --explain`` prints: the tables' plan (:meth:`RenderPlan.explain`), then the notes."""

@@ -42,6 +42,14 @@ import numpy as np
 
 from kmpipe.formats.scene import Scene, build_scene
 from kmpipe.physics.colorimetry import delta_E_2000
+from kmpipe.stages.frame_choice import (
+    ANTIALIASING,
+    SHADOW_MAPS,
+    FrameChoice,
+    antialiasing_fields,
+    free_knobs,
+    scene_fingerprint,
+)
 from kmpipe.stages.render_plan import DEFAULT_TARGET_DE, SHADOW_MAP_SIZES, ScenePlan, parse_mode, plan_scene
 
 #: The knobs, in the order the tables list them.
@@ -117,6 +125,10 @@ class _Product:
         image = self._render(frame)
         return time.perf_counter() - start, image
 
+    def render_once(self, frame) -> np.ndarray:
+        """The image of one render, untimed."""
+        return self._render(frame)
+
     def frame_of(self, scene: Scene, plan: ScenePlan | None = None):
         plan = plan_scene(scene) if plan is None else plan
         [frame] = self._scenes(scene, plan, [0.0], occlusion=self.frame.occlusion)
@@ -181,12 +193,10 @@ def _thickness_samples(product: _Product) -> list[Setting]:
 
 def _antialiasing(product: _Product) -> list[Setting]:
     frame = product.frame
-    planned = (frame.supersampling, frame.multisamples)
-    choices = (("1 sample", 1, 1), ("4 x multisampling", 1, 4), ("2 x 2 supersampling", 2, 1),
-               ("3 x 3 supersampling", 3, 1))  # fmt: skip
-    return [product.either("antialiasing", label, (k, m) == planned,
-                           dataclasses.replace(frame, supersampling=k, multisamples=m))
-            for label, k, m in choices]  # fmt: skip
+    planned = {"supersampling": frame.supersampling, "multisamples": frame.multisamples}
+    return [product.either("antialiasing", label, antialiasing_fields(label) == planned,
+                           dataclasses.replace(frame, **antialiasing_fields(label)))
+            for label, _, _ in ANTIALIASING]  # fmt: skip
 
 
 def _soft_shadows(product: _Product) -> list[Setting]:
@@ -202,7 +212,7 @@ def _shadow_map(product: _Product) -> list[Setting]:
     frame = product.frame
     if not any(light.cast_shadows for light in frame.lights):
         return [product.not_applicable("shadow map", "no light casts shadows")]
-    sizes = sorted({512, 1024, 2048, SHADOW_MAP_SIZES[1], frame.shadow_map_size})
+    sizes = sorted({*SHADOW_MAPS, frame.shadow_map_size})
     return [product.either("shadow map", f"{size} texels", size == frame.shadow_map_size,
                            dataclasses.replace(frame, shadow_map_size=size)) for size in sizes]  # fmt: skip
 
@@ -273,10 +283,52 @@ def _refits(product: _Product, manifests: dict[str, Path | None]) -> list[Settin
     return out
 
 
-def trade_product(name: str, scene: Scene, rebuild: Callable[[dict], Scene],
-                  manifests: dict[str, Path | None]) -> list[Setting]:  # fmt: skip
-    """Every knob's settings for one product (module docstring); ``rebuild(paths)`` gives its scene with materials
-    from other files (name: path), ``manifests`` each material's manifest (None: given as a file)."""
+def _with_settings(product: _Product, settings: dict):
+    """The product's planned frame with the frame settings ``settings`` (knob: setting, :func:`free_knobs`)."""
+    frame = product.frame
+    if "antialiasing" in settings:
+        frame = dataclasses.replace(frame, **antialiasing_fields(settings["antialiasing"]))
+    if "shadow map" in settings:
+        frame = dataclasses.replace(frame, shadow_map_size=settings["shadow map"])
+    if settings.get("subsurface scattering") == "off":
+        frame = dataclasses.replace(frame, scattering=None)
+    return frame
+
+
+def choose_frame_settings(product: _Product, target: float) -> FrameChoice | None:
+    """The cheapest antialiasing, shadow map and subsurface scattering of the product's frame within ``target``
+    (:mod:`kmpipe.stages.frame_choice`), or None when the scene leaves none of them to the planner.
+
+    From the most exact setting of every free knob (the frame's other knobs as planned), each knob in turn
+    (antialiasing first: the most exact one makes every other frame dearer) is lowered to its cheapest setting whose
+    frame keeps 95 % of the product's pixels within ``target`` (Delta E 2000) of that most exact frame, trying the
+    cheapest first; what is kept stays for the knobs after it.
+    """
+    knobs = free_knobs(product.scene, product.plan)
+    if not knobs:
+        return None
+    current = {knob: options[-1] for knob, options in knobs.items()}
+    best = product.render_once(_with_settings(product, current))
+    tried = 1
+    for knob, options in knobs.items():
+        for option in options[: options.index(current[knob])]:
+            candidate = {**current, knob: option}
+            tried += 1
+            if delta_e_stats(product.render_once(_with_settings(product, candidate)), best, product.mask)[1] <= target:
+                current = candidate
+                break
+    seconds, image = product.render(_with_settings(product, current))
+    mean, p95 = delta_e_stats(image, best, product.mask)
+    reference = delta_e_stats(image, product.reference, product.mask)[0]
+    return FrameChoice(scene_fingerprint(product.scene), target, current.get("antialiasing"), current.get("shadow map"),
+                       current.get("subsurface scattering"), seconds, mean, p95, reference, tried)  # fmt: skip
+
+
+def trade_product(name: str, scene: Scene, rebuild: Callable[[dict], Scene], manifests: dict[str, Path | None],
+                  target: float) -> tuple[list[Setting], FrameChoice | None]:  # fmt: skip
+    """Every knob's settings for one product (module docstring), and the frame settings chosen for ``target``
+    (:func:`choose_frame_settings`); ``rebuild(paths)`` gives its scene with materials from other files (name:
+    path), ``manifests`` each material's manifest (None: given as a file)."""
     product = _Product(name, scene, rebuild)
     planned = product.as_planned("planned", "as planned", note=_planned_label(product))
     exact = dataclasses.replace(product.frame_of(_with_mode(scene, "exact")), supersampling=3, multisamples=1,
@@ -286,7 +338,7 @@ def trade_product(name: str, scene: Scene, rebuild: Callable[[dict], Scene],
                  _resolution):  # fmt: skip
         settings += knob(product)
     settings += _refits(product, manifests)
-    return settings
+    return settings, choose_frame_settings(product, target)
 
 
 def _planned_label(product: _Product) -> str:

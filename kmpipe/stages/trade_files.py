@@ -1,7 +1,8 @@
 """The files of ``kmpipe trade`` (:mod:`kmpipe.stages.trade`): ``trade.csv`` (every product's settings),
-``trade.json`` (the same, the line's settings summed over products with the Pareto front, and the planner's choice
-against the cheapest setting within the target) and ``trade.png`` (time against Delta E 2000, the front drawn);
-docs/formats.md, "Trade". Each is written atomically."""
+``trade.json`` (the same, the line's settings summed over products with the Pareto front, the planner's choice
+against the cheapest setting within the target, and each product's frame settings chosen for its target) and
+``trade.png`` (time against Delta E 2000, the front drawn); docs/formats.md, "Trade". Each is written atomically.
+:func:`read_frame_choices` reads the frame settings back, strictly, for ``kmpipe run``'s plans."""
 
 from __future__ import annotations
 
@@ -11,11 +12,17 @@ import json
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import Annotated, Literal
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from kmpipe.errors import InputError
+from kmpipe.formats import files
 from kmpipe.formats.atomic_write import write_atomically, write_text_atomically
+from kmpipe.formats.toml_input import first_validation_error, format_field
+from kmpipe.stages.frame_choice import CHOSEN_ANTIALIASING, SCATTERING, SHADOW_MAPS, FrameChoice
 from kmpipe.stages.trade import KNOBS, Aggregate, Setting
 
 #: Columns of trade.csv, in order.
@@ -39,7 +46,7 @@ def trade_csv(settings: Sequence[Setting]) -> str:
 
 
 def trade_json(line: str, target: float, settings: Sequence[Setting], rows: Sequence[Aggregate],
-               chosen: dict[str, Aggregate]) -> str:  # fmt: skip
+               chosen: dict[str, Aggregate], choices: dict[str, FrameChoice]) -> str:  # fmt: skip
     """trade.json (docs/formats.md, "Trade")."""
     doc = {
         "line": line,
@@ -48,6 +55,7 @@ def trade_json(line: str, target: float, settings: Sequence[Setting], rows: Sequ
         "line_settings": [asdict(r) for r in rows],
         "cheapest_within_target": {knob: row.value for knob, row in chosen.items()},
         "planned": {r.knob: r.value for r in rows if r.planned and r.knob not in ("planned",)},
+        "frame_settings": {product: asdict(choice) for product, choice in choices.items()},
     }
     return json.dumps(doc, indent=1, allow_nan=False) + "\n"
 
@@ -89,11 +97,51 @@ def trade_figure(line: str, target: float, rows: Sequence[Aggregate]) -> bytes:
 
 
 def write_trade(out_dir: Path, line: str, target: float, settings: Sequence[Setting], rows: Sequence[Aggregate],
-                chosen: dict[str, Aggregate]) -> list[Path]:  # fmt: skip
+                chosen: dict[str, Aggregate], choices: dict[str, FrameChoice]) -> list[Path]:  # fmt: skip
     """Write trade.csv, trade.json and trade.png into ``out_dir``; their paths."""
     paths = [out_dir / "trade.csv", out_dir / "trade.json", out_dir / "trade.png"]
     write_text_atomically(paths[0], trade_csv(settings))
-    write_text_atomically(paths[1], trade_json(line, target, settings, rows, chosen))
+    write_text_atomically(paths[1], trade_json(line, target, settings, rows, chosen, choices))
     figure = trade_figure(line, target, rows)
     write_atomically(paths[2], lambda temporary: temporary.write_bytes(figure))
     return paths
+
+
+_NonNegative = Annotated[float, Field(ge=0.0)]
+
+
+class _Choice(BaseModel):
+    """A product's frame settings in trade.json: types exact, unknown fields refused, numbers finite."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    scene_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    target_de: float = Field(gt=0.0)
+    antialiasing: Literal[CHOSEN_ANTIALIASING] | None  # type: ignore[valid-type]
+    shadow_map: Literal[SHADOW_MAPS] | None  # type: ignore[valid-type]
+    scattering: Literal[SCATTERING] | None  # type: ignore[valid-type]
+    seconds: _NonNegative
+    mean_de: _NonNegative
+    p95_de: _NonNegative
+    reference_de: _NonNegative
+    tried: int = Field(ge=1)
+
+
+def read_frame_choices(path: Path) -> dict[str, FrameChoice]:
+    """The frame settings of trade.json (product name: choice); {} where it names none. InputError naming the file
+    and the field for a file that is not a trade or a damaged entry."""
+    document = files.read_json(path, "JSON", "kmpipe trade.json")
+    if not isinstance(document, dict) or not isinstance(document.get("frame_settings", {}), dict):
+        raise InputError("not a kmpipe trade.json: expected an object with a frame_settings object", path=path,
+                         field="frame_settings")  # fmt: skip
+    choices = {}
+    for product, entry in document.get("frame_settings", {}).items():
+        try:
+            choices[product] = FrameChoice(**_Choice.model_validate(entry).model_dump())
+        except ValidationError as err:
+            first = first_validation_error(err)
+            message = "unknown field" if first["type"] == "extra_forbidden" else first["msg"]
+            field = format_field(("frame_settings", product, *first["loc"]))
+            raise InputError(f"a damaged trade.json: {message}; run kmpipe trade again, or delete the file",
+                             path=path, field=field) from None  # fmt: skip
+    return choices
