@@ -60,9 +60,11 @@ def trade_json(line: str, target: float, settings: Sequence[Setting], rows: Sequ
     return json.dumps(doc, indent=1, allow_nan=False) + "\n"
 
 
-def trade_figure(line: str, target: float, rows: Sequence[Aggregate]) -> bytes:
+def trade_figure(line: str, target: float, rows: Sequence[Aggregate], choices: dict[str, FrameChoice]) -> bytes:
     """trade.png: each setting that applies to every product (time summed over them against mean Delta E 2000),
-    coloured by knob, the planner's ringed, the Pareto front joined and labelled, the target drawn."""
+    coloured by knob, the planner's ringed, the Pareto front joined and labelled, the target drawn; and, where every
+    product has frame settings chosen, the frames ``kmpipe run`` then plans (their times summed, their mean Delta E
+    against the reference averaged) as a star."""
     everyone = max((r.products for r in rows), default=0)
     shown = [r for r in rows if r.products == everyone]
     fig = Figure(figsize=(10.0, 6.0), layout="constrained")
@@ -76,6 +78,11 @@ def trade_figure(line: str, target: float, rows: Sequence[Aggregate]) -> bytes:
     planned = [r for r in shown if r.planned]
     ax.scatter([r.mean_de for r in planned], [r.seconds for r in planned], s=140, facecolors="none",
                edgecolors="black", linewidths=1.2, label="as the planner chose", zorder=4)  # fmt: skip
+    if choices and len(choices) == everyone:
+        seconds = sum(c.seconds for c in choices.values())
+        error = sum(c.reference_de for c in choices.values()) / len(choices)
+        ax.scatter([error], [seconds], marker="*", s=220, color="#c62828", edgecolors="black", linewidths=0.6,
+                   label="kmpipe run's plans (the trade's choice)", zorder=5)  # fmt: skip
     front = sorted((r for r in shown if r.front), key=lambda r: r.mean_de)
     ax.plot([r.mean_de for r in front], [r.seconds for r in front], "-", color="0.3", linewidth=1, zorder=2,
             label="Pareto front")  # fmt: skip
@@ -88,7 +95,7 @@ def trade_figure(line: str, target: float, rows: Sequence[Aggregate]) -> bytes:
     ax.set_ylim(bottom=0.0)
     ax.set_xlabel("mean ΔE00 against the most exact setting, over the products' pixels")
     ax.set_ylabel(f"seconds (a frame of each of the {everyone} products, summed)")
-    ax.set_title(f"{line}: speed against accuracy, one knob at a time (knobs of fewer products: trade.csv)")
+    ax.set_title(f"{line}: speed against accuracy, one knob at a time (the rest: trade.csv)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     buffer = io.BytesIO()
@@ -102,7 +109,7 @@ def write_trade(out_dir: Path, line: str, target: float, settings: Sequence[Sett
     paths = [out_dir / "trade.csv", out_dir / "trade.json", out_dir / "trade.png"]
     write_text_atomically(paths[0], trade_csv(settings))
     write_text_atomically(paths[1], trade_json(line, target, settings, rows, chosen, choices))
-    figure = trade_figure(line, target, rows)
+    figure = trade_figure(line, target, rows, choices)
     write_atomically(paths[2], lambda temporary: temporary.write_bytes(figure))
     return paths
 
