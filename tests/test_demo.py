@@ -1,6 +1,6 @@
 """The README's demo command, end to end: a live emulated CS-2000 session, the demo product line (replayed sessions,
-fits, validation, turntables, sheet, report index) run twice (the second time fully cached), an A/B render and the
-shade review of a foundation range."""
+fits, validation, turntables, sheet, report index) run twice (the second time fully cached), the trade of two of its
+products and a third run that plans them with it, an A/B render and the shade review of a foundation range."""
 
 from __future__ import annotations
 
@@ -46,6 +46,14 @@ def test_the_demo_measures_runs_the_line_and_renders(tmp_path):
     assert (line / "reports" / "index.html").is_file()
     # The second run ran nothing.
     assert "0 tasks run" in done.stdout.split("every task is cached")[1]
+    # The trade on two products, then a third run: their plans take the frame settings it chose, the others' keep
+    # the planner's rules.
+    trade = json.loads((line / "trade" / "trade.json").read_text(encoding="utf-8"))
+    assert set(trade["frame_settings"]) == {"Lipstick Classic Red", "Foundation Natural Beige"}
+    for product in products:
+        plan = json.loads((line / "frames" / slug(product["name"]) / "plan.json").read_text(encoding="utf-8"))
+        chosen = any("chosen by kmpipe trade" in note for note in plan["notes"])
+        assert chosen == (product["name"] in trade["frame_settings"]), product["name"]
 
     # The sheet: a row per product, four angles.
     # (each validated product's label ends with its rendered colour's 95 % uncertainty, from its validation.json)
