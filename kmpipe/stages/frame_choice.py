@@ -87,10 +87,15 @@ def free_knobs(scene: Scene, plan: ScenePlan) -> dict[str, tuple]:
     return knobs
 
 
+def _method_and_side(label: str) -> tuple[str, int]:
+    """The antialiasing method and samples a pixel per side of an :data:`ANTIALIASING` label."""
+    _, method, side = next(choice for choice in ANTIALIASING if choice[0] == label)
+    return method, side
+
+
 def antialiasing_fields(label: str) -> dict[str, int]:
     """``supersampling`` and ``multisamples`` of a renderer scene for an :data:`ANTIALIASING` label."""
-    _, method, side = next(choice for choice in ANTIALIASING if choice[0] == label)
-    return renderer_fields(method, side)
+    return renderer_fields(*_method_and_side(label))
 
 
 def apply_choice(plan: ScenePlan, scene: Scene, choice: FrameChoice | None) -> ScenePlan:
@@ -107,7 +112,7 @@ def apply_choice(plan: ScenePlan, scene: Scene, choice: FrameChoice | None) -> S
     notes = list(plan.notes)
     changes: dict = {}
     if "antialiasing" in knobs and choice.antialiasing is not None:
-        _, method, side = next(c for c in ANTIALIASING if c[0] == choice.antialiasing)
+        method, side = _method_and_side(choice.antialiasing)
         changes.update(antialiasing=method, antialias_side=side)
         notes = _replaced(notes, "antialiasing:", f"antialiasing: {choice.antialiasing} -- chosen by kmpipe trade")
     if "shadow map" in knobs and choice.shadow_map is not None:

@@ -134,16 +134,16 @@ def floor_occlusion(scene: Scene) -> FloorOcclusion | None:
     if scene.info.environment is None:
         return None
     centre, radius, bottom = placed_bounds(scene)
-    product = [scene.mesh.copy().apply_transform(scene.model)]
-    product += [prop.mesh.copy().apply_transform(prop.model) for prop in eyes(scene, scene.model)]
     floor = (bottom, (float(centre[0]), float(centre[2])), FLOOR_EXTENT * radius, FLOOR_FADE * radius)
+    others = [prop.mesh for prop in eyes(scene, np.eye(4))]
 
-    def bake() -> FloorOcclusion:
-        baked = bake_floor(product, *floor)
+    def bake() -> FloorOcclusion:  # the meshes placed only when a bake is needed
+        placed = [mesh.copy().apply_transform(scene.model) for mesh in (scene.mesh, *others)]
+        baked = bake_floor(placed, *floor)
         _frozen(baked.values)
         return baked
 
-    return _kept(product, ("floor", *floor), bake)
+    return _kept([scene.mesh, *others], ("floor", scene.model.tobytes(), *floor), bake)
 
 
 def turned_floor(scene: Scene, floor: Prop, baked: FloorOcclusion, model: np.ndarray) -> Prop:

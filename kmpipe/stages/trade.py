@@ -311,7 +311,7 @@ def choose_frame_settings(product: _Product, target: float) -> FrameChoice | Non
     best = product.render_once(_with_settings(product, current))
     tried = 1
     for knob, options in knobs.items():
-        for option in options[: options.index(current[knob])]:
+        for option in options[:-1]:  # the most exact is where it stands
             candidate = {**current, knob: option}
             tried += 1
             if delta_e_stats(product.render_once(_with_settings(product, candidate)), best, product.mask)[1] <= target:
