@@ -496,3 +496,31 @@ def test_three_channel_camera_data():
     _assert_sane(cu, (2, 4, 3))
     np.testing.assert_allclose(cu.K, Kb, rtol=WELL)
     np.testing.assert_allclose(cu.S, Sb, rtol=WELL)
+
+
+def test_the_layout_of_the_inputs_does_not_change_a_bit():
+    """Broadcast backings and thicknesses, a Fortran-ordered or read-only reading, and arrays of many blocks with hard
+    (careful-path) elements scattered through them: every value as with full-size C-ordered copies of the inputs, and
+    as row by row (each row inverted alone, in a block of its own)."""
+    rng = np.random.default_rng(11)
+    rows, wavelengths = 300, 97  # 29,100 values: two blocks and a part, cut inside a row
+    Gb, Gw = rng.uniform(0.0, 0.06, wavelengths), np.float64(0.85)
+    X = rng.uniform(0.005, 0.1, (rows, 1))
+    Rob = rng.uniform(0.0, 0.6, (rows, wavelengths))
+    Row = np.clip(Rob + rng.uniform(-0.05, 0.4, (rows, wavelengths)), 0.0, 1.0)  # some opaque, some out of range
+    Rob[::7, ::5] = Row[::7, ::5]  # equal readings: opaque, redone by the careful path
+    full = [np.ascontiguousarray(np.broadcast_to(v, Rob.shape)) for v in (Rob, Row, Gb, Gw, X)]
+    readonly = Row.copy()
+    readonly.flags.writeable = False
+    for method, laid_out, expanded in (
+        (inv.black_white, (np.asfortranarray(Rob), readonly, Gb, Gw, X), full),
+        (inv.two_constant, (np.asfortranarray(Row), Rob, Gb, X), [full[1], full[0], full[2], full[4]]),
+        (inv.curtis, (Rob.T.copy().T, readonly, X), [full[0], full[1], full[4]]),
+    ):
+        got, want = method(*laid_out), method(*expanded)
+        assert np.count_nonzero(want.flags) > 100  # the careful path had work in several blocks
+        by_row = [method(*(v[row] for v in expanded)) for row in range(rows)]
+        for name in ("K", "S", "ks_ratio", "flags"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=f"{method.__name__} {name}")
+            alone = np.stack([getattr(r, name) for r in by_row])
+            np.testing.assert_array_equal(getattr(got, name), alone, err_msg=f"{method.__name__} {name} by row")

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kmpipe.physics import inversion_kernels as kernels
 from kmpipe.physics.flags import Flag
 from kmpipe.physics.kubelka_munk import ks_from_reflectance_infinite
 
@@ -128,9 +129,11 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
 
     The inputs are broadcast as views (a scalar backing or a per-wavelength array is never copied to
     full size) and seen as rows of their last axis; blocks of about `_BLOCK` elements keep every
-    temporary in cache. ``regular(*blocks, tolerance, K, S, ks, flags)`` fills the output blocks and returns
-    a mask of the elements it cannot do (flagged, limiting or out-of-range ones); their places are kept per block,
-    and after all blocks ``careful(*values, tolerance)`` returns K, S, K/S and flags for those, in one call.
+    temporary in cache (an input that is not contiguous, a broadcast one, is copied a block at a time).
+    ``regular(*blocks, tolerance, K, S, ks, flags, first, second, hard)`` fills the output blocks, using the
+    scratch blocks ``first`` and ``second``, and marks in ``hard`` the elements it cannot do (flagged, limiting or
+    out-of-range ones); their places are kept per block, and after all blocks ``careful(*values, tolerance)``
+    returns K, S, K/S and flags for those, in one call.
     """
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
     shape = arrays[0].shape
@@ -139,20 +142,31 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     count = rows[0].shape[0]
     K, S, ks = (np.empty((count, last)) for _ in range(3))
     flags = np.zeros((count, last), dtype=np.uint8)
-    step = max(1, _BLOCK // last)
+    step = max(1, min(_BLOCK // last, count))
+    copies = [None if r.flags.c_contiguous else np.empty((step, last)) for r in rows]
+    first, second = np.empty((step, last)), np.empty((step, last))
+    hard = np.empty((step, last), dtype=bool)
     hard_rows, hard_columns = [], []
 
     for lo in range(0, count, step):
-        block = slice(lo, lo + step)
-        hard = regular(*(r[block] for r in rows), tolerance, K[block], S[block], ks[block], flags[block])
-        if hard.any():
-            where = np.nonzero(hard)
+        block, size = slice(lo, lo + step), min(step, count - lo)
+        blocks = [r[block] if c is None else _copied(r[block], c[:size]) for r, c in zip(rows, copies, strict=True)]
+        outputs = (K[block], S[block], ks[block], flags[block])
+        regular(*blocks, tolerance, *outputs, first[:size], second[:size], hard[:size])
+        if hard[:size].any():
+            where = np.nonzero(hard[:size])
             hard_rows.append(where[0] + lo)
             hard_columns.append(where[1])
     if hard_rows:
         where = (np.concatenate(hard_rows), np.concatenate(hard_columns))
         K[where], S[where], ks[where], flags[where] = careful(*(r[where] for r in rows), tolerance)
     return Inversion(K=K.reshape(shape), S=S.reshape(shape), ks_ratio=ks.reshape(shape), flags=flags.reshape(shape))
+
+
+def _copied(values: np.ndarray, into: np.ndarray) -> np.ndarray:
+    """``values`` copied into the contiguous block ``into``, which is returned."""
+    np.copyto(into, values)
+    return into
 
 
 def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> Inversion:
@@ -185,39 +199,18 @@ def two_constant(R_inf, R, R_g, X, *, tolerance: float = OPAQUE_TOLERANCE) -> In
     return _blockwise(_two_constant_regular, _two_constant_careful, (R_inf, R, R_g, X), tolerance)
 
 
-def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks, flags):
-    """The common case of :func:`two_constant` into K, S, ks: S X = log1p(delta) / (1/R_inf - R_inf).
+def _two_constant_regular(R_inf, R, R_g, X, tolerance, K, S, ks, flags, delta, two_b_X, hard):
+    """The common case of :func:`two_constant` into K, S, ks: S X = log1p(delta) / (1/R_inf - R_inf), the arithmetic
+    compiled (:func:`~kmpipe.physics.inversion_kernels.two_constant_terms`), log1p numpy's.
 
-    ``flags`` is left at 0: every flagged case is irregular.
-
-    Returns the mask of elements that are flagged, out of range, or have delta < 1e-4 (where
-    log1p(delta)/delta needs its series): :func:`_two_constant_careful` redoes those.
+    ``flags`` is left at 0: every flagged case is irregular. Marks in ``hard`` the elements that are flagged, out
+    of range, or have delta < 1e-4 (where log1p(delta)/delta needs its series): :func:`_two_constant_careful`
+    redoes those.
     """
+    kernels.two_constant_terms(R_inf, R, R_g, X, tolerance, _MIN_REFLECTANCE, ks, delta, two_b_X, hard)
     with np.errstate(all="ignore"):
-        inverse = np.divide(1.0, R_inf)
-        two_b = inverse - R_inf  # (1 - R_inf)(1 + R_inf) / R_inf
-        np.subtract(1.0, R_inf, out=ks)
-        ks *= ks
-        ks *= inverse
-        ks *= 0.5  # (1 - R_inf)^2 / (2 R_inf)
-        limit = tolerance * R_inf
-        gap = R_inf - R
-        irregular = np.abs(gap) <= limit  # opaque
-        delta = R_inf - R_g
-        np.abs(delta, out=delta)
-        irregular |= delta <= limit  # no contrast
-        np.subtract(R, R_g, out=delta)
-        inverse -= R_g
-        inverse *= gap
-        delta /= inverse
-        delta *= two_b
-        irregular |= ~((delta >= 1e-4) & (R_inf >= _MIN_REFLECTANCE) & (R_inf <= 1.0))
         np.log1p(delta, out=S)
-        two_b *= X
-        S /= two_b
-        np.multiply(S, ks, out=K)
-        irregular |= ~(K < np.inf)  # K = S ks: inf or nan where S overflowed (a thickness near 0)
-    return irregular
+    kernels.two_constant_scale(two_b_X, ks, S, K, hard)
 
 
 def _two_constant_careful(R_inf, R, R_g, X, tolerance):
@@ -309,57 +302,23 @@ def black_white(R_over_black, R_over_white, R_black, R_white, X, *, tolerance: f
     )
 
 
-def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags):
-    """The common case of :func:`black_white` into K, S, ks (and flags), with few temporaries.
+def _black_white_regular(Rb, Rw, Gb, Gw, X, tolerance, K, S, ks, flags, w, artanh_w, hard):
+    """The common case of :func:`black_white` into K, S, ks (and flags): the system compiled
+    (:func:`~kmpipe.physics.inversion_kernels.black_white_system`), artanh numpy's, then K, S = (N_u, D) / N_y
+    artanh(w) / w / X.
 
     A negative K/S (noise on a nearly non-absorbing film) is taken as K = 0, S X = D / N_y, the nearest
-    physical solution, flagged AT_BOUND; below -``tolerance`` it is flagged OUT_OF_RANGE instead. Returns
-    the mask of elements that are opaque, have N_y <= b D (no finite, positive S X; this includes N_y <= 0),
+    physical solution, flagged AT_BOUND; below -``tolerance`` it is flagged OUT_OF_RANGE instead. Marks in ``hard``
+    the elements that are opaque, have N_y <= b D (no finite, positive S X; this includes N_y <= 0),
     lie near D = 0 (a clear absorber, where rounding decides the sign of D), or whose K or S is not finite
     (a thickness near 0): those are redone by :func:`_black_white_careful`. Values computed at those
     elements may be inf or nan.
     """
+    kernels.black_white_system(Rb, Rw, Gb, Gw, tolerance, int(Flag.AT_BOUND), int(Flag.OUT_OF_RANGE), _TINY, _MAX_KS,
+                               K, S, ks, w, flags, hard)  # fmt: skip
     with np.errstate(all="ignore"):
-        s_w = Rw + Gw
-        d_b = Rb - Gb
-        s_b = Rb + Gb
-        d_w = Rw - Gw
-        D = s_w * d_b
-        first = np.abs(D)
-        D -= s_b * d_w
-        c_b = (1.0 - Rb) * (1.0 - Gb)
-        c_w = (1.0 - Rw) * (1.0 - Gw)
-        np.multiply(c_w, d_b, out=K)
-        K -= c_b * d_w  # N_u
-        Ny = s_w * c_b
-        Ny -= s_b * c_w
-        irregular = ~(D > 1e-12 * first)
-        negative = K < -1e-12 * D  # beyond rounding: the readings asked for K < 0
-        if negative.any():  # flags is 0 here: AT_BOUND where negative, OUT_OF_RANGE where below -tolerance
-            np.multiply(negative.view(np.uint8), np.uint8(Flag.AT_BOUND), out=flags)
-            np.copyto(flags, np.uint8(Flag.OUT_OF_RANGE), where=K < -tolerance * D)
-        np.maximum(K, 0.0, out=K)
-        b_num = 2.0 * D
-        b_num += K
-        b_num *= K
-        np.sqrt(b_num, out=b_num)  # b |D|
-        irregular |= ~(Ny > b_num)  # y > b >= 0: a finite, positive S X
-        w = b_num / Ny
-        irregular |= np.abs(Rw - Rb) <= tolerance * Rw
-        # artanh(w) / w: w = 0 (K = 0) taken as the smallest normal float, where artanh(w) = w exactly (the limit 1)
-        np.maximum(w, _TINY, out=w)
-        factor = np.arctanh(w)
-        factor /= w
-        factor /= X
-        np.divide(K, D, out=ks)
-        np.minimum(ks, _MAX_KS, out=ks)
-        K /= Ny
-        K *= factor
-        np.divide(D, Ny, out=S)
-        S *= factor
-        np.add(K, S, out=w)
-        irregular |= ~(w < np.inf)
-    return irregular
+        np.arctanh(w, out=artanh_w)
+    kernels.black_white_scale(artanh_w, w, X, K, S, hard)
 
 
 def _black_white_careful(Rb, Rw, Gb, Gw, X, tolerance):
