@@ -17,6 +17,8 @@ carry captions of their own (drawn under each cell, cut with an ellipsis to its 
 
 from __future__ import annotations
 
+import concurrent.futures
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +27,7 @@ import cv2
 import numpy as np
 import OpenImageIO as oiio
 
-from renderer.image_io import _write, read_exr, read_png, srgb_encode
+from renderer.image_io import PNG_COMPRESSION, _write, read_exr, read_png, srgb_encode
 
 #: Sheet background, sRGB-encoded in [0, 1]: a neutral mid-dark grey (code 77).
 BACKGROUND = (0.3, 0.3, 0.3)
@@ -159,6 +161,15 @@ def _fitted(frame: np.ndarray, cell_size: tuple[int, int]) -> oiio.ImageBuf:
     return fitted
 
 
+def _cells(frames: Sequence[str | Path], cell_size: tuple[int, int]) -> list[oiio.ImageBuf]:
+    """Each frame read (:func:`read_frame`) and fitted to its cell (:func:`_fitted`), on a thread per core (reading,
+    decoding, encoding and resizing run outside Python's lock): only the cells stay in memory, not the frames. The
+    first frame in order that cannot be read raises its FrameError."""
+    threads = max(1, min(len(frames), len(os.sched_getaffinity(0))))
+    with concurrent.futures.ThreadPoolExecutor(max_workers=threads) as pool:
+        return list(pool.map(lambda path: _fitted(read_frame(path), cell_size), frames))
+
+
 def _text(buf: oiio.ImageBuf, x: int, y: int, text: str, font_size: int, box: oiio.ROI, **align: str) -> None:
     """Draw ``text`` at ``(x, y)``, clipped to ``box``."""
     if text and not oiio.ImageBufAlgo.render_text(buf, x, y, text, font_size, textcolor=TEXT_COLOUR, roi=box, **align):
@@ -227,15 +238,14 @@ def make_sheet(
         raise ValueError(f"{len(captions)} captions for {len(frames)} frames: give one per frame")
     layout = sheet_layout(rows, columns, header=header, cell_size=cell_size, margin=margin, font_size=font_size,
                           captions=captions is not None)  # fmt: skip
-    images = [read_frame(path) for path in frames]  # read all first: a bad file fails before any drawing
+    cells = _cells(frames, layout.cell_size)  # all read first: a bad file fails before any drawing
 
     sheet = oiio.ImageBuf(oiio.ImageSpec(layout.width, layout.height, 3, oiio.FLOAT))
     oiio.ImageBufAlgo.fill(sheet, BACKGROUND)
     w, h = layout.cell_size
-    for i, image in enumerate(images):
+    for i, fitted in enumerate(cells):
         row, col = divmod(i, layout.n_cols)
         x, y = layout.cell_origin(row, col)
-        fitted = _fitted(image, layout.cell_size)
         fw, fh = fitted.spec().width, fitted.spec().height
         if not oiio.ImageBufAlgo.paste(sheet, x + (w - fw) // 2, y + (h - fh) // 2, 0, 0, fitted):
             raise RuntimeError(f"cannot paste {frames[i]}: {sheet.geterror()}")
@@ -275,4 +285,5 @@ def write_sheet(buf: oiio.ImageBuf, path: str | Path) -> None:
     codes = np.asarray(buf.get_pixels(oiio.UINT8)).reshape(spec.height, spec.width, spec.nchannels)
     out_spec = oiio.ImageSpec(spec.width, spec.height, spec.nchannels, oiio.UINT8)
     out_spec.attribute("oiio:ColorSpace", "sRGB")
+    out_spec.attribute("png:compressionLevel", PNG_COMPRESSION)
     _write(path, codes, out_spec)
