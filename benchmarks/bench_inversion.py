@@ -417,6 +417,10 @@ def tables(results: dict) -> list[Table]:
             f"({info['values'] / info['floor_seconds'] / 1e6:.0f} M values/s)",
             "first touch of fresh memory costs up to ~20 ns/value on this VM (guest pages not yet backed); "
             "best-of-3 times leave it out",
+            "the regular paths' arithmetic runs in two numba loops per block (kmpipe/physics/inversion_kernels.py) "
+            "around numpy's SIMD arctanh (black_white, curtis) or log1p (two_constant); the profiles below charge "
+            "the first writes to the outputs (K, S, K/S and the flags; with the two readings about 41 bytes a value "
+            "against the floor's 16) to the first loop",
             f"times are the best of {info['repeats']} runs on the whole array; the loop is timed on "
             f"{info['loop_values']:,} values and scaled per value",
             *loop_notes,
