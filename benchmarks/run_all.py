@@ -118,7 +118,7 @@ def _summary(
     rows.append(["16-product line: Dask local cluster (2 workers) against the local pool: time", "within 10 %",
                  f"{slower:+.0%}", "yes" if abs(slower) <= 0.1 else "no"])  # fmt: skip
     own = float(one[7]) - run_rows["start"]
-    rows.append(["16-product line, cached re-run beyond interpreter start and imports: s", "< 1", f"{own:.2f}",
+    rows.append(["16-product line, cached re-run beyond interpreter start and its imports: s", "< 1", f"{own:.2f}",
                  "yes" if own < 1.0 else "no"])  # fmt: skip
     for r in review_rows:
         rows.append([f"shade review 10 x 8 x 3, tiles 256, end to end ({r[0]}): s", "< 60", r[2], r[5]])

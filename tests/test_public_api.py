@@ -47,6 +47,16 @@ def test_importing_kmpipe_loads_no_science_or_graphics_library():
     assert out.strip() == "[]"
 
 
+def test_the_command_line_starts_without_colour_science_or_opengl():
+    """``kmpipe --help`` (and every command's parser) needs none of them: a command loads what its work needs."""
+    libraries = "('colour', 'matplotlib', 'OpenGL', 'numba')"
+    code = f"import sys, kmpipe.cli; print(sorted(m for m in {libraries} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    done = subprocess.run([sys.executable, "-m", "kmpipe", "--help"], capture_output=True, text=True, check=True)
+    assert "COMMAND" in done.stdout
+
+
 def test_an_unknown_name_is_an_attribute_error():
     with pytest.raises(AttributeError, match="no attribute 'fit_everything'"):
         kmpipe.fit_everything  # noqa: B018

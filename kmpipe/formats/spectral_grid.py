@@ -13,7 +13,6 @@ from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
 import numpy as np
-from colour.algebra import CubicSplineInterpolator, PchipInterpolator, SpragueInterpolator
 
 from kmpipe.errors import InputError
 from kmpipe.formats.spectra import SpectralTable, format_number
@@ -77,20 +76,25 @@ def _is_uniform(wavelengths: np.ndarray) -> bool:
     return bool(np.all(np.abs(steps - steps[0]) <= COINCIDE_NM))
 
 
-_INTERPOLATORS = {
-    "sprague": SpragueInterpolator,
-    "cubic": CubicSplineInterpolator,
-    "pchip": PchipInterpolator,
-}
+#: Method -> colour-science's interpolator (colour.algebra), imported when a table is resampled: importing
+#: colour-science takes most of a second, which a command that resamples nothing does not pay.
+_INTERPOLATORS = {"sprague": "SpragueInterpolator", "cubic": "CubicSplineInterpolator", "pchip": "PchipInterpolator"}
 
 
 def _interpolator(method: str, source: np.ndarray, path: Path | None) -> type:
+    import colour.algebra
+
+    return getattr(colour.algebra, _INTERPOLATORS[_method(method, source, path)])
+
+
+def _method(method: str, source: np.ndarray, path: Path | None) -> str:
+    """The interpolation ``method`` to use on the ``source`` wavelengths ("auto" decided), or an InputError."""
     if method not in METHODS:
         raise InputError(f"interpolation method '{method}' is not one of {', '.join(METHODS)}", field="method")
     uniform = _is_uniform(source)
     n = source.size
     if method == "auto":
-        return SpragueInterpolator if uniform and n >= 6 else PchipInterpolator
+        return "sprague" if uniform and n >= 6 else "pchip"
     if method == "sprague" and not (uniform and n >= 6):
         raise InputError(
             "Sprague interpolation needs a uniform source grid of at least 6 wavelengths; use 'pchip' or 'cubic'",
@@ -99,7 +103,7 @@ def _interpolator(method: str, source: np.ndarray, path: Path | None) -> type:
         )
     if method == "cubic" and n < 4:
         raise InputError("cubic spline interpolation needs at least 4 wavelengths", path=path, field="method")
-    return _INTERPOLATORS[method]
+    return method
 
 
 def resample(table: SpectralTable, wavelengths: Sequence[float] | np.ndarray, *, method: str = "auto") -> SpectralTable:
