@@ -76,6 +76,9 @@ class Emulator(Instrument):
         self._client: SocketLink | None = None
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
+        #: Set when the serving thread ends: :meth:`wait` waits on it rather than on ``Thread.join``, which a signal
+        #: (Ctrl-C) can interrupt so that the thread is taken for ended while it still runs (CPython gh-90882).
+        self._ended = threading.Event()
         self._wake_r = self._wake_w = -1
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._timer_ids = itertools.count()
@@ -113,6 +116,7 @@ class Emulator(Instrument):
         if self._thread is not None:
             raise RuntimeError("the emulator is already running")
         self._stopping.clear()
+        self._ended.clear()
         self._wake_r, self._wake_w = os.pipe()
         try:
             if self._use_pty:
@@ -143,11 +147,7 @@ class Emulator(Instrument):
 
     def wait(self, timeout: float | None = None) -> bool:
         """Block until the serving thread ends (it does on :meth:`stop` or a failure); False on timeout."""
-        thread = self._thread
-        if thread is not None:
-            thread.join(timeout)
-            return not thread.is_alive()
-        return True
+        return self._thread is None or self._ended.wait(timeout)
 
     def __enter__(self) -> Emulator:
         return self.start()
@@ -253,6 +253,8 @@ class Emulator(Instrument):
                     heapq.heappop(self._timers)[2]()
         except BaseException as error:  # reported by stop()
             self._failure = error
+        finally:
+            self._ended.set()
 
     def _accept(self) -> None:
         assert self._server is not None
