@@ -76,9 +76,6 @@ class Emulator(Instrument):
         self._client: SocketLink | None = None
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
-        #: Set when the serving thread ends: :meth:`wait` waits on it rather than on ``Thread.join``, which a signal
-        #: (Ctrl-C) can interrupt so that the thread is taken for ended while it still runs (CPython gh-90882).
-        self._ended = threading.Event()
         self._wake_r = self._wake_w = -1
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._timer_ids = itertools.count()
@@ -116,7 +113,6 @@ class Emulator(Instrument):
         if self._thread is not None:
             raise RuntimeError("the emulator is already running")
         self._stopping.clear()
-        self._ended.clear()
         self._wake_r, self._wake_w = os.pipe()
         try:
             if self._use_pty:
@@ -147,7 +143,11 @@ class Emulator(Instrument):
 
     def wait(self, timeout: float | None = None) -> bool:
         """Block until the serving thread ends (it does on :meth:`stop` or a failure); False on timeout."""
-        return self._thread is None or self._ended.wait(timeout)
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout)
+            return not thread.is_alive()
+        return True
 
     def __enter__(self) -> Emulator:
         return self.start()
@@ -253,8 +253,6 @@ class Emulator(Instrument):
                     heapq.heappop(self._timers)[2]()
         except BaseException as error:  # reported by stop()
             self._failure = error
-        finally:
-            self._ended.set()
 
     def _accept(self) -> None:
         assert self._server is not None
