@@ -655,12 +655,15 @@ def test_command_line_runs_until_interrupted(tmp_path):
     link = tmp_path / "cs2000"
     root = Path(__file__).resolve().parents[1]
     script = root / "recipes" / "samples" / "F1" / "emulator.toml"
+    # Ctrl-C as at a terminal: a test run started in the background by a shell without job control ignores SIGINT,
+    # and its children would inherit that.
     process = subprocess.Popen(
         [sys.executable, "-m", "kmpipe", "emulate", "--samples", str(script), "--link", str(link), "--time-scale",
          "0.01"],
         stdout=subprocess.PIPE,
         text=True,
         cwd=root,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     try:
         assert f"(link {link})" in process.stdout.readline()

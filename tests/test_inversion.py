@@ -16,6 +16,7 @@ elements must still give K/S to 1e-9, and K, S no larger than the truth (a lower
 from __future__ import annotations
 
 import functools
+import warnings
 
 import mp_reference as ref
 import numpy as np
@@ -524,3 +525,19 @@ def test_the_layout_of_the_inputs_does_not_change_a_bit():
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=f"{method.__name__} {name}")
             alone = np.stack([getattr(r, name) for r in by_row])
             np.testing.assert_array_equal(getattr(got, name), alone, err_msg=f"{method.__name__} {name} by row")
+
+
+def test_no_warning_whatever_the_inputs_shapes():
+    """Scalars, one-element arrays and broadcast backings raise no warning of any kind (numpy's FutureWarning on the
+    writeable flag of broadcast views among them)."""
+    calls = (
+        lambda: inv.black_white(np.array([0.1]), np.array([0.5]), 0.04, 0.85, 0.03),
+        lambda: inv.black_white(0.1, 0.5, np.array([0.04]), 0.85, np.array([[0.03]])),
+        lambda: inv.two_constant(0.5, 0.3, 0.04, 0.03),
+        lambda: inv.two_constant(np.full((2, 3), 0.5), 0.3, np.array([0.04, 0.05, 0.06]), np.ones((2, 1))),
+        lambda: inv.curtis(np.full((3, 4), 0.1), 0.5, np.ones((3, 1))),
+    )
+    for call in calls:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            _assert_sane(call(), np.shape(call().K))

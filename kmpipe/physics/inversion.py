@@ -135,8 +135,9 @@ def _blockwise(regular, careful, inputs, tolerance) -> Inversion:
     out-of-range ones); their places are kept per block, and after all blocks ``careful(*values, tolerance)``
     returns K, S, K/S and flags for those, in one call.
     """
-    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
-    shape = arrays[0].shape
+    values = [np.asarray(v, dtype=np.float64) for v in inputs]
+    shape = np.broadcast_shapes(*(v.shape for v in values))
+    arrays = [v if v.shape == shape else np.broadcast_to(v, shape) for v in values]  # read-only views
     last = shape[-1] if shape and shape[-1] > 0 else 1
     rows = [a.reshape(-1, last) for a in arrays]
     count = rows[0].shape[0]
