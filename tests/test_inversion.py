@@ -541,3 +541,17 @@ def test_no_warning_whatever_the_inputs_shapes():
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             _assert_sane(call(), np.shape(call().K))
+
+
+def test_the_loops_compile_where_no_cache_can_be_written():
+    """A read-only install with a read-only home has nowhere to keep numba's compiled loops: they are compiled in the
+    process instead of failing. A function with no source file has no cache location either."""
+    import numba
+
+    from kmpipe.physics.inversion_kernels import _compiled
+
+    namespace: dict = {}
+    exec(compile("def twice(x):\n    return 2.0 * x\n", "<no file>", "exec"), namespace)
+    with pytest.raises(RuntimeError, match="cannot cache"):
+        numba.njit(numba.float64(numba.float64), cache=True)(namespace["twice"])
+    assert _compiled(numba.float64(numba.float64))(namespace["twice"])(3.0) == 6.0

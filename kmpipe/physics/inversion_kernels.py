@@ -19,15 +19,27 @@ _FLOATS = numba.types.Array(numba.float64, 2, "C")
 _READINGS = numba.types.Array(numba.float64, 2, "C", readonly=True)
 _FLAGS = numba.types.Array(numba.uint8, 2, "C")
 _MASK = numba.types.Array(numba.boolean, 2, "C")
-#: Compiled ahead of the first call (one signature each), kept in __pycache__ (or numba's per-user cache), without
-#: Python's division checks: a division by zero gives inf or nan, as in numpy with its errors ignored.
-_COMPILE = {"cache": True, "nogil": True, "error_model": "numpy"}
+#: Without Python's division checks: a division by zero gives inf or nan, as in numpy with its errors ignored.
+_OPTIONS = {"nogil": True, "error_model": "numpy"}
 
 
-@numba.njit(
+def _compiled(signature):
+    """Compile a loop for ``signature`` when this module is imported, kept on disk for the next process: in
+    __pycache__ beside this file, else in numba's per-user cache (NUMBA_CACHE_DIR chooses another). Where neither is
+    writable (a read-only install and home), each process compiles it anew (about a second)."""
+
+    def compile_(function):
+        try:
+            return numba.njit(signature, cache=True, **_OPTIONS)(function)
+        except RuntimeError:  # numba: "cannot cache function ...: no locator available"
+            return numba.njit(signature, **_OPTIONS)(function)
+
+    return compile_
+
+
+@_compiled(
     numba.void(_READINGS, _READINGS, _READINGS, _READINGS, numba.float64, numba.uint8, numba.uint8, numba.float64,
                numba.float64, _FLOATS, _FLOATS, _FLOATS, _FLOATS, _FLAGS, _MASK),
-    **_COMPILE,
 )  # fmt: skip
 def black_white_system(Rb, Rw, Gb, Gw, tolerance, at_bound, out_of_range, tiny, max_ks, KX, SX, ks, w, flags, hard):
     """The 2 x 2 system of :func:`kmpipe.physics.inversion.black_white` by Cramer's rule, per element.
@@ -65,7 +77,7 @@ def black_white_system(Rb, Rw, Gb, Gw, tolerance, at_bound, out_of_range, tiny, 
             hard[i, j] = not (D > 1e-12 * abs(first)) or not (Ny > b_D) or abs(rw - rb) <= tolerance * rw
 
 
-@numba.njit(numba.void(_READINGS, _READINGS, _READINGS, _FLOATS, _FLOATS, _MASK), **_COMPILE)
+@_compiled(numba.void(_READINGS, _READINGS, _READINGS, _FLOATS, _FLOATS, _MASK))
 def black_white_scale(artanh_w, w, X, K, S, hard):
     """K = (N_u / N_y) artanh(w) / w / X and S = (D / N_y) artanh(w) / w / X in place; ``hard`` where K + S is not
     finite (a thickness near 0)."""
@@ -78,10 +90,9 @@ def black_white_scale(artanh_w, w, X, K, S, hard):
             hard[i, j] |= not (k + s < np.inf)
 
 
-@numba.njit(
+@_compiled(
     numba.void(_READINGS, _READINGS, _READINGS, _READINGS, numba.float64, numba.float64, _FLOATS, _FLOATS, _FLOATS,
                _MASK),
-    **_COMPILE,
 )  # fmt: skip
 def two_constant_terms(R_inf, R, R_g, X, tolerance, min_reflectance, ks, delta, two_b_X, hard):
     """The terms of :func:`kmpipe.physics.inversion.two_constant`'s S X = log1p(delta) / (1/R_inf - R_inf), per element.
@@ -110,7 +121,7 @@ def two_constant_terms(R_inf, R, R_g, X, tolerance, min_reflectance, ks, delta, 
             )
 
 
-@numba.njit(numba.void(_READINGS, _READINGS, _FLOATS, _FLOATS, _MASK), **_COMPILE)
+@_compiled(numba.void(_READINGS, _READINGS, _FLOATS, _FLOATS, _MASK))
 def two_constant_scale(two_b_X, ks, S, K, hard):
     """S = log1p(delta) / ((1/R_inf - R_inf) X) in place (``S`` holds log1p(delta)), K = S K/S; ``hard`` where K is
     not finite (S overflowed: a thickness near 0)."""
