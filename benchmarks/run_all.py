@@ -116,7 +116,7 @@ def _summary(
                  "yes" if ratio >= 1.8 else "no"])  # fmt: skip
     slower = float(dask[2]) / float(pool[2]) - 1.0
     rows.append(["16-product line: Dask local cluster (2 workers) against the local pool: time", "within 10 %",
-                 f"{slower:+.0%}", "yes" if abs(slower) <= 0.1 else "no"])  # fmt: skip
+                 f"{slower:+.1%}", "yes" if abs(slower) <= 0.1 else "no"])  # fmt: skip
     own = float(one[7]) - run_rows["start"]
     rows.append(["16-product line, cached re-run beyond interpreter start and its imports: s", "< 1", f"{own:.2f}",
                  "yes" if own < 1.0 else "no"])  # fmt: skip
