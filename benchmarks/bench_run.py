@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import REPO, Table
+from common import REPO, Table, best_of
 
 RECIPE = REPO / "recipes" / "demo" / "recipe.toml"
 CONFIGURATIONS = (
@@ -103,12 +103,7 @@ IMPORTS = "import kmpipe.cli, kmpipe.run.planning, kmpipe.run.execute, kmpipe.ph
 
 def _start() -> float:
     """Seconds (best of 3) that starting the interpreter and :data:`IMPORTS` take."""
-    times = []
-    for _ in range(3):
-        begin = time.perf_counter()
-        subprocess.run([sys.executable, "-c", IMPORTS], check=True)
-        times.append(time.perf_counter() - begin)
-    return min(times)
+    return best_of(lambda: subprocess.run([sys.executable, "-c", IMPORTS], check=True))[0]
 
 
 def _scaling(folder: Path) -> tuple[list[list[str]], float]:
