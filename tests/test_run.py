@@ -29,7 +29,7 @@ from PIL import Image
 from kmpipe import cli
 from kmpipe.formats.spectra import read_spectra_csv
 from kmpipe.run.execute import execute
-from kmpipe.run.executors import THREAD_VARIABLES, make_executor, worker_environment
+from kmpipe.run.executors import QUIET, THREAD_VARIABLES, make_executor, worker_environment
 from kmpipe.run.folder import LOCK
 from kmpipe.run.planning import FRAMES_PER_TASK, plan_run
 from renderer.image_io import read_exr, write_map
@@ -429,6 +429,25 @@ def test_workers_start_with_their_share_and_this_process_keeps_its_environment(k
     share = str(max(1, len(os.sched_getaffinity(0)) // 2))
     assert seen == {**dict.fromkeys(THREAD_VARIABLES, share), "MALLOC_TRIM_THRESHOLD_": None}
     assert dict(os.environ) == before
+
+
+def test_a_local_dask_cluster_runs_its_workers_without_dashboard_monitors():
+    """The local cluster's workers get :data:`QUIET` (their profiler off, monitors slower): it must reach the worker
+    processes, which the nanny spawns with the configuration it had when it was made."""
+    import dask
+    import distributed  # noqa: F401 (its configuration defaults load with it)
+
+    before = {key: dask.config.get(key) for key in QUIET}
+    pool = make_executor("dask", 2, None)
+    try:
+        seen = {key: pool.client.run(dask.config.get, key) for key in QUIET}
+    finally:
+        pool.close()
+    assert all(len(workers) == 2 for workers in seen.values())
+    assert {key: set(map(str, workers.values())) for key, workers in seen.items()} == {
+        key: {str(value)} for key, value in QUIET.items()
+    }
+    assert {key: dask.config.get(key) for key in QUIET} == before  # this process's configuration is untouched
 
 
 # ---------------------------------------------------------------------------------------------------- dry run ---
