@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import re
 import shutil
 
 import colour
@@ -259,3 +260,76 @@ def test_what_the_scene_sets_itself_stays_the_scenes(traded, tmp_path):
         assert (applied.shadow_map_size == 512) == ("shadow map" in free)
         assert (applied.antialias_side == 2 and applied.antialiasing == "supersample") == ("antialiasing" in free)
         assert applied.shadow_map_size in (512, plan.shadow_map_size)
+
+
+# ------------------------------------------------------------------------------------ kmpipe render --measure-settings
+
+LABELS = {"4 x multisampling": ("multisample", 2), "2 x 2 supersampling": ("supersample", 2),
+          "3 x 3 supersampling": ("supersample", 3)}  # fmt: skip
+
+
+def _scene(path, material, *, scene="", output="", base="[substrate]\nreflectance = 0.8\n", mesh="compact"):
+    path.write_text(f'[scene]\nname = "F1"\nmesh = "{mesh}"\nresolution = [32, 32]\n{scene}{base}[[layer]]\n'
+                    f'material = "{material}"\nthickness = "40 um"\n[[light]]\ndirection = [0.4, 0.8, 0.6]\n'
+                    f'[ground]\nreflectance = 0.35\n[turntable]\nframes = 2\n{output}', encoding="utf-8")  # fmt: skip
+    return path
+
+
+def _frames(folder) -> list[np.ndarray]:
+    return [read_exr(folder / f"frame_{i:03d}.exr")[0] for i in range(2)]
+
+
+def _settings_of(printed: str, folder) -> tuple[str, int]:
+    """The antialiasing (label, from the frame's header) and shadow map (texels, from --explain) a render used."""
+    shadow = re.search(r"(\d+) x \1 texels \(chosen by kmpipe render --measure-settings\)", printed)
+    return read_exr(folder / "frame_000.exr")[1]["antialias"], int(shadow[1])
+
+
+@pytest.mark.parametrize("skin", [False, True], ids=["substrate", "skin-no-sss"])
+def test_kmpipe_render_measures_its_frame_settings_and_renders_every_frame_with_them(traded, tmp_path, capsys, skin):
+    """The settings chosen keep 95 % of the product's pixels within the target of the most exact frame, and the
+    turntable rendered with them equals, pixel for pixel, the scene rendered with them written into it. With
+    --no-sss on skin, scattering is not measured: the frames are the scene's with its scattering off."""
+    folder, _, _ = traded
+    material = folder / "out" / PRODUCTS / "foundation-f1" / "material.json"
+    base = '[skin]\nreflectance = "colorchecker:light skin"\n' if skin else "[substrate]\nreflectance = 0.8\n"
+    mesh = "sphere" if skin else "compact"
+    path = _scene(tmp_path / "scene.toml", material, base=base, mesh=mesh)
+    options = ["--no-sss"] if skin else []
+    assert main(["render", str(path), "-o", str(tmp_path / "measured"), "--measure-settings", "--explain",
+                 *options]) == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    assert "measured by kmpipe render --measure-settings on this product's frame" in printed
+    assert "subsurface scattering: off -- chosen" not in printed
+    label, shadow_map = _settings_of(printed, tmp_path / "measured")
+
+    scene = load_scene(path)
+    if skin:  # what --no-sss renders
+        scene = dataclasses.replace(scene, info=scene.info.model_copy(update={"skin": scene.info.skin.model_copy(
+            update={"scattering": False})}))  # fmt: skip
+    product = _Product("F1", scene, None)
+    knobs = free_knobs(scene, product.plan)
+    assert set(knobs) == {"antialiasing", "shadow map"}
+    best = product.render_once(_with_settings(product, {k: options[-1] for k, options in knobs.items()}))
+    assert _p95(product, {"antialiasing": label, "shadow map": shadow_map}, best) <= 0.5
+
+    method, side = LABELS[label]
+    base += "scattering = false\n" if skin else ""
+    explicit = _scene(tmp_path / "explicit.toml", material, scene=f"shadow_map = {shadow_map}\n", base=base, mesh=mesh,
+                      output=f'[output]\nantialias = {side}\nantialias_method = "{method}"\n')  # fmt: skip
+    assert main(["render", str(explicit), "-o", str(tmp_path / "explicit")]) == 0
+    for measured, written in zip(_frames(tmp_path / "measured"), _frames(tmp_path / "explicit"), strict=True):
+        assert np.array_equal(measured, written)
+    if skin:
+        assert read_exr(tmp_path / "measured" / "frame_000.exr")[1]["subsurface_scattering"] == "off"
+
+
+def test_kmpipe_render_with_nothing_to_measure_says_so_and_renders_as_planned(traded, tmp_path, capsys):
+    folder, _, _ = traded
+    material = folder / "out" / PRODUCTS / "foundation-f1" / "material.json"
+    path = _scene(tmp_path / "scene.toml", material, scene="shadow_map = 1024\n", output="[output]\nantialias = 2\n")
+    assert main(["render", str(path), "-o", str(tmp_path / "measured"), "--measure-settings", "--explain"]) == 0
+    assert "frame settings: nothing to measure (--measure-settings)" in capsys.readouterr().out
+    assert main(["render", str(path), "-o", str(tmp_path / "planned")]) == 0
+    for measured, planned in zip(_frames(tmp_path / "measured"), _frames(tmp_path / "planned"), strict=True):
+        assert np.array_equal(measured, planned)

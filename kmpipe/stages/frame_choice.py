@@ -11,7 +11,8 @@ let a few stair-stepped silhouettes or a blocky shadow edge pass). The choice, i
 scene it was measured on (:func:`scene_fingerprint`) go into ``trade.json``; ``kmpipe run`` into
 the same output folder plans each product with its choice (:func:`apply_choice`): only the knobs the scene leaves to
 the planner (:func:`free_knobs`) are set, and a choice measured on another version of the scene is not used (the
-plan says so).
+plan says so). ``kmpipe render SCENE --measure-settings`` makes the same choice on a scene file's first frame
+(:func:`kmpipe.stages.trade.measure_frame_choice`) and renders the turntable with it.
 """
 
 from __future__ import annotations
@@ -98,10 +99,11 @@ def antialiasing_fields(label: str) -> dict[str, int]:
     return renderer_fields(*_method_and_side(label))
 
 
-def apply_choice(plan: ScenePlan, scene: Scene, choice: FrameChoice | None) -> ScenePlan:
-    """``plan`` with the frame settings of ``choice`` (measured by ``kmpipe trade`` on this product) on the knobs the
-    scene leaves to the planner, its notes saying so; as it is, with a note why, where the choice was measured on
-    another version of the scene; as it is without a choice (the plan of ``kmpipe render``)."""
+def apply_choice(plan: ScenePlan, scene: Scene, choice: FrameChoice | None, by: str = "kmpipe trade") -> ScenePlan:
+    """``plan`` with the frame settings of ``choice`` (measured ``by`` ``kmpipe trade`` on this product, or by
+    ``kmpipe render --measure-settings`` on this scene) on the knobs the scene leaves to the planner, its notes saying
+    so; as it is, with a note why, where the choice was measured on another version of the scene; as it is without a
+    choice (the plan of a ``kmpipe render`` that does not measure)."""
     if choice is None:
         return plan
     if choice.scene_sha256 != scene_fingerprint(scene):
@@ -114,18 +116,18 @@ def apply_choice(plan: ScenePlan, scene: Scene, choice: FrameChoice | None) -> S
     if "antialiasing" in knobs and choice.antialiasing is not None:
         method, side = _method_and_side(choice.antialiasing)
         changes.update(antialiasing=method, antialias_side=side)
-        notes = _replaced(notes, "antialiasing:", f"antialiasing: {choice.antialiasing} -- chosen by kmpipe trade")
+        notes = _replaced(notes, "antialiasing:", f"antialiasing: {choice.antialiasing} -- chosen by {by}")
     if "shadow map" in knobs and choice.shadow_map is not None:
         changes["shadow_map_size"] = choice.shadow_map
         old = f"{plan.shadow_map_size} x {plan.shadow_map_size} texels"
-        notes = [note.replace(old, f"{choice.shadow_map} x {choice.shadow_map} texels (chosen by kmpipe trade)")
+        notes = [note.replace(old, f"{choice.shadow_map} x {choice.shadow_map} texels (chosen by {by})")
                  if note.startswith("shadow maps:") else note for note in notes]  # fmt: skip
     if "subsurface scattering" in knobs and choice.scattering == "off":
         changes["scattering"] = None
-        notes = _replaced(notes, "subsurface scattering:", "subsurface scattering: off -- chosen by kmpipe trade (the "
-                                                           "frame is within the target without it)")  # fmt: skip
+        notes = _replaced(notes, "subsurface scattering:", f"subsurface scattering: off -- chosen by {by} (the frame "
+                                                           "is within the target without it)")  # fmt: skip
     notes.append(
-        f"frame settings: measured by kmpipe trade on this product's frame: the cheapest antialiasing, shadow map and "
+        f"frame settings: measured by {by} on this product's frame: the cheapest antialiasing, shadow map and "
         f"subsurface scattering with 95 % of the product's pixels within Delta E 2000 {choice.target_de:g} of the "
         f"frame with them at their most exact (95th percentile {choice.p95_de:.2f}, mean {choice.mean_de:.2f}; "
         f"against the most exact frame of all, mode included: mean {choice.reference_de:.2f}; {choice.seconds:.2f} s "

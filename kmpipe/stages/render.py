@@ -28,6 +28,7 @@ from kmpipe.formats.albedo_texture import basis_spectra, texture_weights
 from kmpipe.formats.scene import Scene, load_scene
 from kmpipe.physics.optical_tables import exact_stack, parse_mode, working_space
 from kmpipe.stages import antialiasing, framing, staging
+from kmpipe.stages.frame_choice import apply_choice
 from kmpipe.stages.render_plan import SHADOW_MAP_SIZES, ScenePlan, placed_bounds, plan_scene, scene_reach
 from kmpipe.stages.sheet import write_contact_sheet
 from kmpipe.stages.video import write_turntable_videos
@@ -249,6 +250,7 @@ def render_scene(
     out_dir: str | Path,
     *,
     plan: ScenePlan | None = None,
+    measure_settings: bool = False,
     explain: bool = False,
     scattering: bool = True,
     ab_scattering: bool = False,
@@ -261,7 +263,10 @@ def render_scene(
 
     ``plan`` renders as that plan of the scene says (e.g. its plan file read back,
     :func:`kmpipe.stages.plan_file.read_plan`) without planning again; by default the scene is planned
-    (:func:`kmpipe.stages.render_plan.plan_scene`). ``explain`` passes the plan's text to ``echo``; ``on_frame(i,
+    (:func:`kmpipe.stages.render_plan.plan_scene`), and with ``measure_settings`` its antialiasing, shadow map and
+    subsurface scattering (those it leaves to the planner) are then the cheapest whose first frame keeps 95 % of the
+    product's pixels within the scene's Delta E 2000 target, measured as ``kmpipe trade`` measures a line's products
+    (:func:`kmpipe.stages.trade.measure_frame_choice`). ``explain`` passes the plan's text to ``echo``; ``on_frame(i,
     n)`` is called after frame i of n. The PNG is tone mapped as the scene's ``[output]`` says; the EXR keeps the
     linear render. On skin, ``scattering=False`` turns subsurface scattering off, and ``ab_scattering`` renders every
     frame without it as well (into ``no_sss/``) and lays both out on ``ab_sss.png`` (with above, without below,
@@ -298,6 +303,12 @@ def render_scene(
             path=scene.path,
             field="skin.scattering",
         )
+    if plan is None and measure_settings:
+        if on_skin and not scattering:  # --no-sss: scattering is not a setting to measure
+            scene = dataclasses.replace(scene, info=info.model_copy(update={"skin": info.skin.model_copy(
+                update={"scattering": False})}))  # fmt: skip
+            info = scene.info
+        plan = _measured_plan(scene)
     plan = plan_scene(scene) if plan is None else plan
     if explain:
         from renderer.context import renderer_name
@@ -380,6 +391,19 @@ def render_scene(
             exrs, out_dir, formats=info.output.video, fps=info.output.fps, inputs=scene.inputs
         )
     return written
+
+
+def _measured_plan(scene: Scene) -> ScenePlan:
+    """The scene's plan with the frame settings measured on its first frame
+    (:func:`kmpipe.stages.trade.measure_frame_choice`), its notes saying so, or that there was nothing to measure."""
+    from kmpipe.stages.trade import measure_frame_choice
+
+    choice, plan = measure_frame_choice(scene), plan_scene(scene)
+    if choice is not None:
+        return apply_choice(plan, scene, choice, by="kmpipe render --measure-settings")
+    note = ("frame settings: nothing to measure (--measure-settings): the scene sets its antialiasing, shadow map and "
+            "subsurface scattering itself, or they do not apply to it")  # fmt: skip
+    return dataclasses.replace(plan, notes=(*plan.notes, note))
 
 
 def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) -> None:

@@ -31,6 +31,7 @@ Delta E) over the products: the settings no other beats on both. ``trade.csv``, 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -95,9 +96,10 @@ def delta_e_stats(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) ->
 
 
 class _Product:
-    """One product's scene, its planned frame and reference, and how to render variants of it."""
+    """One product's scene, its planned frame and reference, and how to render variants of it; ``rebuild(paths)``
+    gives its scene with materials from other files (name: path), None where none can be (a scene file)."""
 
-    def __init__(self, name: str, scene: Scene, rebuild: Callable[[dict], Scene]) -> None:
+    def __init__(self, name: str, scene: Scene, rebuild: Callable[[dict], Scene] | None) -> None:
         from kmpipe.stages.render import renderer_scenes
         from renderer.layers import render_layers
         from renderer.skin import render_skin
@@ -115,8 +117,25 @@ class _Product:
         ))[1]  # fmt: skip
         alone = dataclasses.replace(exact, props=(), background=(0.0, 0.0, 0.0), supersampling=1, multisamples=1)
         self.mask = self.render(alone)[1].max(axis=-1) > 0.0
-        self.planned_seconds, self.planned = self.render(self.frame)
-        self.planned_de = delta_e_stats(self.planned, self.reference, self.mask)
+
+    @functools.cached_property
+    def _planned(self) -> tuple[float, np.ndarray, tuple[float, float]]:
+        """The planned frame's seconds, image and (mean, 95th percentile) Delta E 2000 against the reference, rendered
+        when first asked for (choosing frame settings alone does not need it)."""
+        seconds, image = self.render(self.frame)
+        return seconds, image, delta_e_stats(image, self.reference, self.mask)
+
+    @property
+    def planned_seconds(self) -> float:
+        return self._planned[0]
+
+    @property
+    def planned(self) -> np.ndarray:
+        return self._planned[1]
+
+    @property
+    def planned_de(self) -> tuple[float, float]:
+        return self._planned[2]
 
     def render(self, frame) -> tuple[float, np.ndarray]:
         """(seconds of a render after a warm-up one, the image)."""
@@ -322,6 +341,15 @@ def choose_frame_settings(product: _Product, target: float) -> FrameChoice | Non
     reference = delta_e_stats(image, product.reference, product.mask)[0]
     return FrameChoice(scene_fingerprint(product.scene), target, current.get("antialiasing"), current.get("shadow map"),
                        current.get("subsurface scattering"), seconds, mean, p95, reference, tried)  # fmt: skip
+
+
+def measure_frame_choice(scene: Scene) -> FrameChoice | None:
+    """The frame settings of a scene file chosen on its own first frame for its own target (:func:`target_of`,
+    :func:`choose_frame_settings`), as ``kmpipe trade`` chooses them for a line's product: what ``kmpipe render
+    --measure-settings`` renders with. None, with nothing rendered, where the scene sets every one of them."""
+    if not free_knobs(scene, plan_scene(scene)):
+        return None
+    return choose_frame_settings(_Product(scene.name, scene, None), target_of([scene]))
 
 
 def trade_product(name: str, scene: Scene, rebuild: Callable[[dict], Scene], manifests: dict[str, Path | None],
