@@ -311,17 +311,18 @@ vec4 upsampled_visibility(ivec2 pixel, vec3 position, vec3 normal, float depth) 
 }
 #endif
 
-// Visibility of a light (0 = shadowed, 1 = lit) at the shadow lookup point `point` (shadow_lookup.glsl): 1 for a
+// Visibility of a light (0 = shadowed, 1 = lit) at the shadow lookup point `point` (shadow_lookup.glsl) of a surface
+// of unit normal `normal`: 1 for a
 // light without shadows; an area light's from the soft-shadow pass (`upsampled`, where it is >= 0; SOFT_SHADOW_SCALE
 // 1: computed here) or, where that pass has no point on this surface nearby (a sliver of a surface), one 2 x 2
 // filtered lookup.
-float light_visibility(int light, vec3 point, float upsampled) {
+float light_visibility(int light, vec3 point, vec3 normal, float upsampled) {
     float visibility = 1.0;
     if (BIT(SHADOW_LIGHTS, light) == 1) {
         vec3 p = shadow_coordinates(light, point);
         vec2 texel = shadow_texel(light);
 #if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE == 1
-        visibility = BIT(SOFT_LIGHTS, light) == 1 ? soft_visibility(light, p, texel, gl_FragCoord.xy)
+        visibility = BIT(SOFT_LIGHTS, light) == 1 ? soft_visibility(light, point, normal, texel, gl_FragCoord.xy)
                                                   : hard_visibility(light, p, texel);
 #elif SOFT_LIGHTS != 0
         if (BIT(SOFT_LIGHTS, light) == 1) {  // (a single filtered tap where the pass has no point: rare, and cheap)
@@ -455,7 +456,7 @@ void shade(out vec4 out_colour, out vec4 out_skin, out vec4 out_depth) {
             }
         }
         vec3 point = shadow_point(light, g_position, geometric, l);
-        vec3 incident = e * light_visibility(light, point, soft[light]) * cos_theta;
+        vec3 incident = e * light_visibility(light, point, geometric, soft[light]) * cos_theta;
         colour += incident * (surface + PI * specular);
         skin += incident * (reflectance - over_black);
     }

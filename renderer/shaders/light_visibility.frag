@@ -52,8 +52,7 @@ void main() {
     for (int light = 0; light < LIGHT_COUNT; ++light) {
         if (BIT(SOFT_LIGHTS, light) == 1) {
             vec3 point = shadow_point(light, position, normal, towards_light(light, position));
-            visibility[light] = soft_visibility(light, shadow_coordinates(light, point), shadow_texel(light),
-                                                gl_FragCoord.xy);
+            visibility[light] = soft_visibility(light, point, normal, shadow_texel(light), gl_FragCoord.xy);
         }
     }
 #endif

@@ -6,9 +6,10 @@
 // interpolated normal (more at grazing light), so that a curved surface does not shadow itself between the map's
 // texels ("acne"). A hard light takes 3 x 3 PCF taps, each a 2 x 2 filtered lookup. An area light takes
 // percentage-closer soft shadows: 16 taps of a blocker search over the region the light can be seen through (a disc
-// as wide as its penumbra for an occluder at the frustum's near end, radius 1 to 64 texels), their mean distance
-// d_o, then 16 PCF taps over a disc as wide as the penumbra the light casts from there (radius 1 to 64 texels), the
-// disc turned per pixel by interleaved gradient noise (Jimenez 2014), which supersampling averages out.
+// as wide as its penumbra for an occluder at the frustum's near end), their mean distance d_o, then 16 PCF taps over
+// a disc as wide as the penumbra the light casts from there, the disc turned per pixel by interleaved gradient noise
+// (Jimenez 2014), which supersampling averages out. Both discs have a radius of 1 texel up to a sixteenth of the
+// map's side, whatever its size, and every tap is compared with the depth of the receiver's own plane there.
 
 uniform vec3 u_light_vector[MAX_LIGHTS];     // directional: unit vector towards the light; point: position (mm)
 uniform mat4 u_shadow_matrix[MAX_LIGHTS];    // world -> shadow map texture coordinates and depth, [0, 1]^3
@@ -95,32 +96,53 @@ const vec2 DISC[16] = vec2[16](
     vec2(0.1790, -0.0364), vec2(0.2735, 0.9045), vec2(0.3360, -0.6447), vec2(0.4768, 0.2973),
     vec2(0.6063, -0.2457), vec2(0.7140, 0.6440), vec2(0.8413, -0.5226), vec2(0.9620, 0.1130));
 
-// Visibility of an area light at shadow-map coordinates p (percentage-closer soft shadows, as the top of this file
-// says), the discs turned by the noise of window position `pixel`.
-float soft_visibility(int light, vec3 p, vec2 texel, vec2 pixel) {
+// The depth gradient d(depth) / d(xy) in the shadow map of the plane through the world point `point` (shadow-map
+// coordinates p) with unit normal `normal`: from two points of the plane a texel away along two tangents, Cramer's
+// rule on depth = p.z + g . (xy - p.xy). (0, 0) where the map sees the plane edge-on (it holds no depth of it there).
+vec2 receiver_gradient(int light, vec3 point, vec3 normal, vec3 p) {
+    vec3 t1 = normalize(cross(normal, abs(normal.x) < 0.9 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0)));
+    vec3 t2 = cross(normal, t1);
+    vec3 d1 = shadow_coordinates(light, point + u_shadow_texel[light] * t1) - p;
+    vec3 d2 = shadow_coordinates(light, point + u_shadow_texel[light] * t2) - p;
+    float det = d1.x * d2.y - d1.y * d2.x;
+    vec2 g = vec2(d1.z * d2.y - d1.y * d2.z, d1.x * d2.z - d1.z * d2.x) / det;
+    return abs(det) > 1e-3 * length(d1.xy) * length(d2.xy) ? g : vec2(0.0);
+}
+
+// Visibility of an area light at the world point `point` of a surface of unit normal `normal` (percentage-closer
+// soft shadows, as the top of this file says), the discs turned by the noise of window position `pixel`. Each tap
+// is compared with the depth of the surface's own plane there (receiver_gradient), not the point's: over a disc
+// many texels wide, a surface at an angle to the map would otherwise shadow itself on the side nearer the light.
+float soft_visibility(int light, vec3 point, vec3 normal, vec2 texel, vec2 pixel) {
     // (if blocks, no early returns: llvmpipe runs the code after a return)
+    vec3 p = shadow_coordinates(light, point);
+    vec2 g = receiver_gradient(light, point, normal, p);
     float visibility = 1.0;
     float angle = 6.2831853 * fract(52.9829189 * fract(dot(pixel, vec2(0.06711056, 0.00583715))));
     mat2 turn = mat2(cos(angle), sin(angle), -sin(angle), cos(angle));
     float receiver = light_distance(light, p.z);
-    // disc radii (texels): half the penumbra's width
+    // disc radii (texels): half the penumbra's width, at most a sixteenth of the map's side (64 texels of a 1024 map):
+    // the same disc on the scene whatever the map's size, a larger map sampling it more finely
+    float most = max(1.0, 0.0625 / texel.x);
     float reach = 0.5 * penumbra(light, receiver, u_shadow_range[light].x) / u_shadow_texel[light];
-    float search = clamp(reach, 1.0, 64.0);
+    float search = clamp(reach, 1.0, most);
     float blockers = 0.0;
     int found = 0;
     for (int i = 0; i < 16; ++i) {
-        float depth = shadow_depth(light, p.xy + turn * DISC[i] * search * texel);
-        if (depth < p.z) {
+        vec2 offset = turn * DISC[i] * search * texel;
+        float depth = shadow_depth(light, p.xy + offset);
+        if (depth < p.z + dot(g, offset)) {
             blockers += light_distance(light, depth);
             ++found;
         }
     }
     if (found > 0) {
         float spread = 0.5 * penumbra(light, receiver, blockers / float(found)) / u_shadow_texel[light];
-        float width = clamp(spread, 1.0, 64.0);
+        float width = clamp(spread, 1.0, most);
         float lit = 0.0;
         for (int i = 0; i < 16; ++i) {
-            lit += shadow_compare(light, vec3(p.xy + turn * DISC[i] * width * texel, p.z));
+            vec2 offset = turn * DISC[i] * width * texel;
+            lit += shadow_compare(light, vec3(p.xy + offset, p.z + dot(g, offset)));
         }
         visibility = lit / 16.0;
     }
