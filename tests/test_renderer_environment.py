@@ -461,6 +461,63 @@ def test_the_penumbra_is_the_lights_whatever_the_shadow_maps_size():
     assert abs(widths[1] - widths[0]) < 0.15 * widths[0]
 
 
+def ray_cast_visibility(points: np.ndarray, centre: np.ndarray, radius: float, towards: np.ndarray,
+                        angle_deg: float, n: int = 2048) -> np.ndarray:  # fmt: skip
+    """The fraction of a directional light of angular diameter ``angle_deg`` (unit vector ``towards`` it) seen from
+    each of ``points`` (N x 3, mm) past a sphere: ``n`` directions spread evenly over the light's disc (a Vogel
+    spiral in the tangent plane, radius tan(angle / 2)), each ray tested against the sphere analytically."""
+    u = np.cross(towards, (0.0, 1.0, 0.0) if abs(towards[1]) < 0.9 else (1.0, 0.0, 0.0))
+    u /= np.linalg.norm(u)
+    v = np.cross(towards, u)
+    k = np.arange(n) + 0.5
+    r, a = np.tan(np.radians(angle_deg) / 2.0) * np.sqrt(k / n), k * np.pi * (3.0 - np.sqrt(5.0))
+    rays = towards + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    seen = np.empty(len(points))
+    for start in range(0, len(points), 512):
+        oc = points[start : start + 512] - centre
+        b = oc @ rays.T
+        c = np.sum(oc * oc, axis=1)[:, None] - radius * radius
+        root = np.sqrt(np.maximum(b * b - c, 0.0))
+        seen[start : start + 512] = 1.0 - np.mean((b * b > c) & (-b - root > 0.0), axis=1)
+    return seen
+
+
+@pytest.mark.parametrize(("angle", "size"), [(10.0, 1024), (10.0, 4096), (30.0, 1024), (30.0, 4096)])
+def test_soft_shadows_agree_with_ray_casting_the_light(angle, size):
+    """A sphere 15 mm across floating 35 mm over a floor, a wall behind (the scene as large as a backdrop makes it),
+    a light 10 or 30 degrees wide from 27 degrees off the vertical: the floor's visibility (the render over the
+    render without the sphere) against the fraction of the light's disc seen past the sphere, ray cast from each
+    pixel's point. The shadow's whole occlusion (summed over the floor) agrees within 5 % on maps of 1024 and 4096
+    texels, the pixels within 0.1 on average: no penumbra narrowed by the map's size, no floor or wall shadowing
+    itself."""
+    radius, height, res, half = 15.0, 35.0, 96, 60.0
+    travel = np.array([0.5, 0.0, -1.0]) / np.sqrt(1.25)
+    wall = np.eye(4)
+    wall[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
+    wall[:3, 3] = (0.0, 100.0, 100.0)
+    ball = np.eye(4)
+    ball[2, 3] = height
+
+    def render(props: list) -> np.ndarray:
+        return render_layers(Scene(
+            mesh=meshes.card(300.0, 300.0), stack=ChannelStack((), (), (0.8,) * 3), resolution=(res, res),
+            camera=OrthographicCamera(half_height=half, eye=(0.0, 0.0, 150.0), near=1.0, far=400.0),
+            lights=[DirectionalLight(tuple(travel), (1.0, 1.0, 1.0), angle_deg=angle)], shadow_map_size=size,
+            props=[*props, Prop(meshes.card(300.0, 200.0), (0.5, 0.5, 0.5), wall)], soft_shadow_scale=1,
+        ))[..., 0]  # fmt: skip
+
+    visibility = render([Prop(meshes.sphere(radius), (0.5, 0.5, 0.5), ball)]) / render([])
+    x = -half + (np.arange(res) + 0.5) * (2.0 * half / res)
+    floor = np.stack(np.broadcast_arrays(x[None, :], -x[:, None], 0.0), axis=-1).reshape(-1, 3)
+    truth = ray_cast_visibility(floor, np.array([0.0, 0.0, height]), radius, -travel, angle).reshape(res, res)
+    beside = (x[None, :] ** 2 + x[:, None] ** 2) > (radius + 1.0) ** 2  # the floor the camera sees past the sphere
+    assert np.sum(1.0 - truth[beside]) > 300.0  # a shadow of some 300 pixels' worth
+    assert np.sum(1.0 - visibility[beside]) == pytest.approx(np.sum(1.0 - truth[beside]), rel=0.05)
+    shadowed = beside & ((truth < 0.999) | (visibility < 0.999))
+    assert np.mean(np.abs(visibility - truth)[shadowed]) < 0.1
+
+
 @pytest.mark.parametrize("size", [512, 2048])
 def test_a_surface_at_an_angle_to_an_area_light_does_not_shadow_itself(size):
     """A card turned 50 degrees from a light 20 degrees wide, nothing else in the scene: nothing can shadow it, so
