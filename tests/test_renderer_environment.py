@@ -518,6 +518,46 @@ def test_soft_shadows_agree_with_ray_casting_the_light(angle, size):
     assert np.mean(np.abs(visibility - truth)[shadowed]) < 0.1
 
 
+@pytest.mark.parametrize("size", [1024, 4096])
+def test_soft_shadows_of_the_head_over_a_sweep_agree_with_hard_shadows_averaged_over_the_light(size):
+    """The bundled head over a studio sweep under a light 20 degrees wide: the visibility of every surface (the render
+    over the render without shadows) against its mean over 32 hard-shadowed renders, the light turned to directions
+    spread over its disc (a Vogel spiral), the accumulation a renderer does without any soft-shadow estimate. The
+    whole occlusion agrees within 15 % (what the hard-edged terminator on the head and the floor's long shadow leave),
+    the pixels within 0.03 on average. Before the soft shadows' discs were the map's and compared with the receiver's
+    plane, the sweep and the head shadowed themselves: 4.2 times the occlusion, 0.16 on average."""
+    head = load_mesh(ROOT / "recipes" / "head" / "head.obj")
+    place = np.eye(4)
+    place[:3, 3] = (0.0, head.bounds[0][1] - 40.0, head.bounds[0][2] - 150.0)
+    sweep = Prop(meshes.sweep(1400.0, 700.0, 200.0, 900.0), (0.6, 0.6, 0.6), place)
+    towards = np.array([0.5, 0.6, 0.8]) / np.sqrt(1.25)
+
+    def render(direction: np.ndarray, angle: float, shadows: bool) -> np.ndarray:
+        light = DirectionalLight(tuple(-direction), (1.0, 1.0, 1.0), angle_deg=angle, cast_shadows=shadows)
+        return render_layers(Scene(
+            mesh=head, stack=ChannelStack((), (), (0.8,) * 3), resolution=(128, 128), lights=[light], props=[sweep],
+            camera=OrthographicCamera(half_height=260.0, eye=(-600.0, 150.0, 500.0), target=(0.0, -60.0, -60.0),
+                                      far=3000.0),
+            shadow_map_size=size, soft_shadow_scale=1,
+        ))[..., 1]  # fmt: skip
+
+    def visibility(direction: np.ndarray, angle: float) -> np.ndarray:
+        return render(direction, angle, True) / np.maximum(render(direction, angle, False), 1e-6)
+
+    u = np.cross(towards, (0.0, 1.0, 0.0))
+    u /= np.linalg.norm(u)
+    v = np.cross(towards, u)
+    k = np.arange(32) + 0.5
+    r, a = np.tan(np.radians(10.0)) * np.sqrt(k / 32), k * np.pi * (3.0 - np.sqrt(5.0))
+    directions = towards + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+    averaged = np.mean([visibility(d / np.linalg.norm(d), 0.0) for d in directions], axis=0)
+    soft = visibility(towards, 20.0)
+    seen = render(towards, 0.0, False) > 1e-3
+    assert np.sum(1.0 - averaged[seen]) > 500.0  # shadows of some 500 pixels' worth: the head's own and on the floor
+    assert np.sum(1.0 - soft[seen]) == pytest.approx(np.sum(1.0 - averaged[seen]), rel=0.15)
+    assert np.mean(np.abs(soft - averaged)[seen]) < 0.03
+
+
 @pytest.mark.parametrize("size", [512, 2048])
 def test_a_surface_at_an_angle_to_an_area_light_does_not_shadow_itself(size):
     """A card turned 50 degrees from a light 20 degrees wide, nothing else in the scene: nothing can shadow it, so
