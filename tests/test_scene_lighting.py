@@ -11,6 +11,7 @@ k = exp(-t / f), cos = cos a / sqrt(k^2 sin^2 a + cos^2 a); which scenes need wh
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -368,3 +369,46 @@ def test_a_glossy_film_of_no_thickness_leaves_the_surface_as_it_was(tmp_path, ma
         frames.append(image)
     np.testing.assert_array_equal(frames[0], frames[1])
     assert frames[0].max() > 0.1
+
+
+# Soft shadows on skin, end to end.
+
+
+def test_soft_shadows_of_the_made_up_head_agree_with_hard_shadows_averaged_over_the_light(tmp_path, material):
+    """The bundled head on skin, made up, over the sweep, seen from the side (the turntable at 90 degrees) under a key
+    light 20 degrees wide, as ``kmpipe render`` builds it, at 4096 texels: the visibility of every pixel (the skin
+    render over the render without shadows, scattering and environment off so that only the key shades) against its
+    mean over 48 hard-shadowed renders with the light turned to directions spread over its disc. The occlusion agrees
+    within 15 % and the pixels within 0.04 on average (here: 4.5 %, 0.017); when the sweep and the head shadowed
+    themselves, 3.6 times the occlusion, 0.11 on average."""
+    from renderer.skin import render_skin
+
+    scene = load_scene(write_scene(tmp_path, material, '[backdrop]\nkind = "sweep"', mesh="head",
+                                   base='[skin]\nreflectance = "colorchecker:light skin"',
+                                   light="direction = [0.5, 0.6, 0.8]\nangle_deg = 20.0"))  # fmt: skip
+    (frame,) = renderer_scenes(scene, plan_scene(scene), [90.0])
+    frame = dataclasses.replace(frame, resolution=(128, 128), supersampling=1, multisamples=1, soft_shadow_scale=1,
+                                shadow_map_size=4096, scattering=None, environment=None)  # fmt: skip
+    (key,) = frame.lights
+
+    def render(light) -> np.ndarray:
+        return render_skin(dataclasses.replace(frame, lights=(light,)))[..., 1]
+
+    def visibility(light) -> np.ndarray:
+        return render(light) / np.maximum(render(dataclasses.replace(light, cast_shadows=False)), 1e-6)
+
+    towards = -np.asarray(key.direction, dtype=float)
+    towards /= np.linalg.norm(towards)
+    u = np.cross(towards, (0.0, 1.0, 0.0))
+    u /= np.linalg.norm(u)
+    v = np.cross(towards, u)
+    k = np.arange(48) + 0.5
+    r, a = np.tan(np.radians(key.angle_deg) / 2.0) * np.sqrt(k / 48), k * np.pi * (3.0 - np.sqrt(5.0))
+    directions = towards + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+    hard = [dataclasses.replace(key, direction=tuple(-d / np.linalg.norm(d)), angle_deg=0.0) for d in directions]
+    averaged = np.mean([visibility(light) for light in hard], axis=0)
+    soft = visibility(key)
+    seen = render(dataclasses.replace(key, cast_shadows=False)) > 1e-3
+    assert np.sum(1.0 - averaged[seen]) > 300.0  # the head's shadow side and its shadow on the sweep
+    assert np.sum(1.0 - soft[seen]) == pytest.approx(np.sum(1.0 - averaged[seen]), rel=0.15)
+    assert np.mean(np.abs(soft - averaged)[seen]) < 0.04
