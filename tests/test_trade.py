@@ -333,3 +333,20 @@ def test_kmpipe_render_with_nothing_to_measure_says_so_and_renders_as_planned(tr
     assert main(["render", str(path), "-o", str(tmp_path / "planned")]) == 0
     for measured, planned in zip(_frames(tmp_path / "measured"), _frames(tmp_path / "planned"), strict=True):
         assert np.array_equal(measured, planned)
+
+
+def test_kmpipe_render_measuring_for_an_ab_sheet_keeps_the_skins_scattering(traded, tmp_path, capsys):
+    """--ab-sss compares frames with and without subsurface scattering: measuring leaves scattering on (it is not
+    among the knobs), so the two rows of the sheet differ."""
+    folder, _, _ = traded
+    material = folder / "out" / PRODUCTS / "foundation-f1" / "material.json"
+    path = _scene(tmp_path / "scene.toml", material, base='[skin]\nreflectance = "colorchecker:light skin"\n',
+                  mesh="sphere")  # fmt: skip
+    out = tmp_path / "measured"
+    assert main(["render", str(path), "-o", str(out), "--measure-settings", "--ab-sss", "--explain"]) == 0
+    printed = capsys.readouterr().out
+    assert "measured by kmpipe render --measure-settings" in printed and "scattering: off -- chosen" not in printed
+    with_sss, header = read_exr(out / "frame_000.exr")
+    assert header["subsurface_scattering"].startswith("alpha")
+    assert not np.array_equal(with_sss, read_exr(out / "no_sss" / "frame_000.exr")[0])
+    assert (out / "ab_sss.png").is_file()

@@ -304,9 +304,9 @@ def render_scene(
             field="skin.scattering",
         )
     if plan is None and measure_settings:
-        if on_skin and not scattering:  # --no-sss: scattering is not a setting to measure
+        if on_skin and (ab_scattering or not scattering):  # --ab-sss, --no-sss: scattering is set, not measured
             scene = dataclasses.replace(scene, info=info.model_copy(update={"skin": info.skin.model_copy(
-                update={"scattering": False})}))  # fmt: skip
+                update={"scattering": info.skin.scattering if scattering else False})}))  # fmt: skip
             info = scene.info
         plan = _measured_plan(scene)
     plan = plan_scene(scene) if plan is None else plan
