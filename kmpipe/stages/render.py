@@ -398,7 +398,8 @@ def _measured_plan(scene: Scene) -> ScenePlan:
     (:func:`kmpipe.stages.trade.measure_frame_choice`), its notes saying so, or that there was nothing to measure."""
     from kmpipe.stages.trade import measure_frame_choice
 
-    choice, plan = measure_frame_choice(scene), plan_scene(scene)
+    plan = plan_scene(scene)
+    choice = measure_frame_choice(scene, plan)
     if choice is not None:
         return apply_choice(plan, scene, choice, by="kmpipe render --measure-settings")
     note = ("frame settings: nothing to measure (--measure-settings): the scene sets its antialiasing, shadow map and "

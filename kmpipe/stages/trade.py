@@ -97,9 +97,11 @@ def delta_e_stats(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) ->
 
 class _Product:
     """One product's scene, its planned frame and reference, and how to render variants of it; ``rebuild(paths)``
-    gives its scene with materials from other files (name: path), None where none can be (a scene file)."""
+    gives its scene with materials from other files (name: path), None where none can be (a scene file); ``plan``
+    the scene's plan where the caller has it (planned here otherwise)."""
 
-    def __init__(self, name: str, scene: Scene, rebuild: Callable[[dict], Scene] | None) -> None:
+    def __init__(self, name: str, scene: Scene, rebuild: Callable[[dict], Scene] | None,
+                 plan: ScenePlan | None = None) -> None:  # fmt: skip
         from kmpipe.stages.render import renderer_scenes
         from renderer.layers import render_layers
         from renderer.skin import render_skin
@@ -108,7 +110,7 @@ class _Product:
         self.on_skin = scene.info.skin is not None
         self._render = render_skin if self.on_skin else render_layers
         self._scenes = renderer_scenes
-        self.plan = plan_scene(scene)
+        self.plan = plan_scene(scene) if plan is None else plan
         [self.frame] = renderer_scenes(scene, self.plan, [0.0])
         exact_scene = _with_mode(scene, "exact")
         [exact] = renderer_scenes(exact_scene, plan_scene(exact_scene), [0.0], occlusion=self.frame.occlusion)
@@ -343,13 +345,14 @@ def choose_frame_settings(product: _Product, target: float) -> FrameChoice | Non
                        current.get("subsurface scattering"), seconds, mean, p95, reference, tried)  # fmt: skip
 
 
-def measure_frame_choice(scene: Scene) -> FrameChoice | None:
-    """The frame settings of a scene file chosen on its own first frame for its own target (:func:`target_of`,
-    :func:`choose_frame_settings`), as ``kmpipe trade`` chooses them for a line's product: what ``kmpipe render
-    --measure-settings`` renders with. None, with nothing rendered, where the scene sets every one of them."""
-    if not free_knobs(scene, plan_scene(scene)):
+def measure_frame_choice(scene: Scene, plan: ScenePlan) -> FrameChoice | None:
+    """The frame settings of a scene file (planned as ``plan``) chosen on its own first frame for its own target
+    (:func:`target_of`, :func:`choose_frame_settings`), as ``kmpipe trade`` chooses them for a line's product: what
+    ``kmpipe render --measure-settings`` renders with. None, with nothing rendered, where the scene sets every one of
+    them."""
+    if not free_knobs(scene, plan):
         return None
-    return choose_frame_settings(_Product(scene.name, scene, None), target_of([scene]))
+    return choose_frame_settings(_Product(scene.name, scene, None, plan), target_of([scene]))
 
 
 def trade_product(name: str, scene: Scene, rebuild: Callable[[dict], Scene], manifests: dict[str, Path | None],

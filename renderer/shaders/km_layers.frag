@@ -312,10 +312,9 @@ vec4 upsampled_visibility(ivec2 pixel, vec3 position, vec3 normal, float depth) 
 #endif
 
 // Visibility of a light (0 = shadowed, 1 = lit) at the shadow lookup point `point` (shadow_lookup.glsl) of a surface
-// of unit normal `normal`: 1 for a
-// light without shadows; an area light's from the soft-shadow pass (`upsampled`, where it is >= 0; SOFT_SHADOW_SCALE
-// 1: computed here) or, where that pass has no point on this surface nearby (a sliver of a surface), one 2 x 2
-// filtered lookup.
+// of unit normal `normal`: 1 for a light without shadows; an area light's from the soft-shadow pass (`upsampled`,
+// where it is >= 0; SOFT_SHADOW_SCALE 1: computed here) or, where that pass has no point on this surface nearby (a
+// sliver of a surface), one 2 x 2 filtered lookup.
 float light_visibility(int light, vec3 point, vec3 normal, float upsampled) {
     float visibility = 1.0;
     if (BIT(SHADOW_LIGHTS, light) == 1) {
