@@ -176,6 +176,7 @@ def test_ingest_on_broken_spectra(target, breakage):
 
 @FUZZ
 @given(target=st.sampled_from(["manifest.toml", "F1.csv", "backings.csv", "white.csv"]), breakage=text_breakages)
+@example(target="manifest.toml", breakage=Breakage(kind="token", position=0.5, token='"\\u0000"'))  # a NUL in a path
 def test_fit_on_broken_manifests_and_spectra(target, breakage):
     with workspace(copy_sample) as work:
         breakage.apply(work / target)

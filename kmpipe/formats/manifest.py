@@ -164,15 +164,26 @@ class SampleInfo(StrictModel):
     kind: str = ""
 
 
+def _path_text(value: str) -> str:
+    """A path the system can look up: no NUL character (every call on such a name raises, before any file is seen)."""
+    if "\0" in value:
+        raise ValueError(f"a file path holds no NUL character, got {value!r}")
+    return value
+
+
+#: A file's path as a manifest gives it (relative to the manifest): non-empty, no NUL character.
+PathText = Annotated[str, Field(min_length=1), AfterValidator(_path_text)]
+
+
 class ColumnRef(StrictModel):
     """A column of a spectral CSV, the file relative to the manifest."""
 
-    file: str = Field(min_length=1)
+    file: PathText
     column: str = Field(min_length=1)
 
 
 class WhiteReference(ColumnRef):
-    certified: str = "builtin:baso4"
+    certified: PathText = "builtin:baso4"
     dark: ColumnRef | None = None
     #: Standard uncertainty of the certified reflectance (k = 1): a fraction, or a CSV 'PATH:COLUMN' of one per
     #: wavelength; None: :data:`WHITE_UNCERTAINTY` of the kind of certificate.
