@@ -52,6 +52,7 @@ from renderer.uniforms import (
     LAST_UNIT,
     SHADOW_DEPTH_UNIT,
     SHADOW_UNIT,
+    SOFT_PASS_TARGETS,
     SOFT_TARGETS,
     SUBSTRATE_UNIT,
     detail_textures,
@@ -72,6 +73,8 @@ from renderer.uniforms import (
 
 #: Most meshes in one pass (the product and its props): one stencil bit each.
 MAX_MESHES = 8
+#: Texels each way the soft-shadow filter reaches at most (soft_shadow_filter.frag).
+SOFT_FILTER_RADIUS = 3
 
 
 def _shading_program(switches: dict[str, int]) -> Program:
@@ -231,12 +234,13 @@ class SurfacePass:
             GL.glBindVertexArray(vao)
             try:
                 self._cover(attributes)
-                if self.soft_shadows and self.soft_shadow_scale > 1:
-                    scale = self.soft_shadow_scale
-                    with pooled(-(-width // scale), -(-height // scale), SOFT_TARGETS) as soft:
-                        self._soft_shadows(attributes, soft)
+                if self.soft_shadows:
+                    size = (-(-width // self.soft_shadow_scale), -(-height // self.soft_shadow_scale))
+                    with pooled(*size, SOFT_PASS_TARGETS) as soft, pooled(*size, SOFT_TARGETS) as filtered:
+                        self._soft_shadows(attributes, soft, height)
+                        _filter_soft_shadows(soft, filtered)
                         target.bind()
-                        self._shade(attributes, split, soft.colours)
+                        self._shade(attributes, split, filtered.colours)
                 else:
                     self._shade(attributes, split, None)
                 GL.glFinish()
@@ -287,13 +291,16 @@ class SurfacePass:
         GL.glStencilMask(0)
         GL.glColorMask(GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE, GL.GL_TRUE)
 
-    def _soft_shadows(self, attributes: Framebuffer, soft: Framebuffer) -> None:
-        """The area lights' visibility at 1 / scale of the resolution into ``soft`` (light_visibility.frag)."""
-        switches = {name: self.product_switches[name] for name in ("SAMPLES", "SOFT_SHADOW_SCALE", "LIGHT_COUNT",
-                                                                   "POINT_LIGHTS", "SOFT_LIGHTS")}  # fmt: skip
+    def _soft_shadows(self, attributes: Framebuffer, soft: Framebuffer, height: int) -> None:
+        """The area lights' visibility at 1 / scale of the resolution into ``soft`` (light_visibility.frag), of a frame
+        ``height`` pixels high."""
+        names = ("SAMPLES", "SOFT_SHADOW_SCALE", "LIGHT_COUNT", "POINT_LIGHTS", "SOFT_LIGHTS", "ORTHOGRAPHIC")
+        switches = {name: self.product_switches[name] for name in names}
         program = shared_program("fullscreen.vert", "light_visibility.frag", defines=switches)
         program.use()
         set_attributes(program, attributes.colours, self.samples, read=(0, 1, 2))
+        GL.glUniform2f(program.location("u_footprint"), *_footprint(self.camera, height))
+        set_view(program, self.camera)
         self._bind_shadows(program)
         GL.glDisable(GL.GL_STENCIL_TEST)
         soft.bind()
@@ -302,7 +309,7 @@ class SurfacePass:
 
     def _shade(self, attributes: Framebuffer, split: bool, soft: list[int] | None) -> None:
         """Shade each mesh over the pixels its stencil bit marks, adding (blending) into the bound target; ``soft``:
-        the soft-shadow pass's targets, or None (soft shadows computed per pixel, or none)."""
+        the soft-shadow pass's filtered targets, or None (no soft shadows)."""
         GL.glEnable(GL.GL_BLEND)
         GL.glBlendFunc(GL.GL_ONE, GL.GL_ONE)
         # The product (or the skin).
@@ -381,6 +388,22 @@ def _unbind_units() -> None:
         GL.glBindTexture(GL.GL_TEXTURE_2D_MULTISAMPLE, 0)
         GL.glBindSampler(unit_index, 0)
     GL.glActiveTexture(GL.GL_TEXTURE0)
+
+
+def _filter_soft_shadows(soft: Framebuffer, filtered: Framebuffer) -> None:
+    """The soft-shadow pass's visibility filtered on each surface (soft_shadow_filter.frag), ``soft`` (its three
+    targets) into ``filtered`` (the visibility and the plane, what the shading pass reads)."""
+    program = shared_program("fullscreen.vert", "soft_shadow_filter.frag", defines={"RADIUS": SOFT_FILTER_RADIUS})
+    program.use()
+    for unit, (name, texture) in enumerate(zip(("u_visibility", "u_plane", "u_reach"), soft.colours, strict=True)):
+        GL.glUniform1i(program.location(name), unit)
+        GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, texture)
+    GL.glActiveTexture(GL.GL_TEXTURE0)
+    GL.glDisable(GL.GL_STENCIL_TEST)
+    filtered.bind()
+    GL.glDrawArrays(GL.GL_TRIANGLES, 0, 3)
+    GL.glEnable(GL.GL_STENCIL_TEST)
 
 
 def _shade_mesh(program: Program, index: int) -> None:

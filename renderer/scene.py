@@ -311,8 +311,8 @@ class Scene:
         partial coverage as with supersampling, for about the shading cost of one sample a pixel. 1: none.
     soft_shadow_scale
         Pixels per side of the blocks in which area lights' soft shadows are computed (:data:`SOFT_SHADOW_SCALES`):
-        2 computes them at half the frame's resolution and upsamples them along each surface (about a quarter of
-        their cost, and smoother: their sampling noise is spread); 1 computes them at every shaded pixel.
+        2 computes them at half the frame's resolution (about a quarter of their cost), 1 at every pixel; either way
+        they are filtered along each surface (which removes their sampling noise) and upsampled to the frame.
     """
 
     mesh: trimesh.Trimesh

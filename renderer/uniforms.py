@@ -31,8 +31,10 @@ SHADOW_DEPTH_UNIT = ENV_UNIT + 3
 DETAIL_UNIT = SHADOW_DEPTH_UNIT + MAX_LIGHTS
 FLOOR_UNIT = DETAIL_UNIT + 3
 ATTRIBUTE_UNIT = FLOOR_UNIT + 1
-#: Targets of the surface attributes (surface_attributes.frag) and of the soft-shadow pass (light_visibility.frag).
+#: Targets of the surface attributes (surface_attributes.frag), of the soft-shadow pass (light_visibility.frag) and
+#: of its filter (soft_shadow_filter.frag), which the shading pass reads.
 ATTRIBUTE_TARGETS = 4
+SOFT_PASS_TARGETS = 3
 SOFT_TARGETS = 2
 SOFT_UNIT = ATTRIBUTE_UNIT + ATTRIBUTE_TARGETS
 LAST_UNIT = SOFT_UNIT + SOFT_TARGETS - 1

@@ -415,7 +415,8 @@ def plan_scene(scene: Scene) -> ScenePlan:
                 for i, light in enumerate(lights) if wanted[i] and (light.angle_deg or light.size_mm)]  # fmt: skip
         if soft:
             notes.append(f"soft shadows (area lights: percentage-closer soft shadows, 16 + 16 taps, at half the "
-                         f"resolution and upsampled along each surface): lights {', '.join(soft)}")  # fmt: skip
+                         f"resolution, filtered and upsampled along each surface): lights "
+                         f"{', '.join(soft)}")  # fmt: skip
     _check_point_lights(scene, wanted)
     notes.append(plan_notes.backdrop_note(scene))
     notes.append(plan_notes.detail_note(scene))

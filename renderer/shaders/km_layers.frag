@@ -79,8 +79,8 @@
 // direction is u_view_vector everywhere), SKIN_SPLIT (the skin pass's outputs: this surface is skin); bit masks (bit i
 // for film or light i): THICKNESS_MAPS (the film's thickness from its map, else u_thickness), LOBES (the film has a
 // lobe; bit MAX_LAYERS: the substrate), POINT_LIGHTS (else directional), SHADOW_LIGHTS (the light's shadow map is
-// looked up), SOFT_LIGHTS (an area light: soft shadows); SOFT_SHADOW_SCALE (soft shadows computed here, 1, or by the
-// soft-shadow pass in blocks of that many pixels a side, 2).
+// looked up), SOFT_LIGHTS (an area light: soft shadows); SOFT_SHADOW_SCALE (the soft-shadow pass's blocks, pixels a
+// side: 1 or 2).
 #define BIT(mask, i) (((mask) >> (i)) & 1)
 #define MAX_LAYERS 4
 #define MAX_GROUPS 8
@@ -157,7 +157,7 @@ uniform vec3 u_view_vector;                  // ORTHOGRAPHIC: unit vector toward
 
 #include "shadow_lookup.glsl"
 
-#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE > 1
+#if SOFT_LIGHTS != 0
 uniform sampler2D u_soft_visibility;         // the soft lights' visibility (light_visibility.frag), a channel each
 uniform sampler2D u_soft_plane;              // the surface's plane there: unit normal n, n.p (mm); 0 where none
 #endif
@@ -282,7 +282,7 @@ void stack_optics(float thickness[MAX_LAYERS], out vec3 reflectance, out vec3 ov
     }
 }
 
-#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE > 1
+#if SOFT_LIGHTS != 0
 // The soft lights' visibility at the surface point `position` (unit normal `normal`, view depth `depth`) in window
 // pixel `pixel`, from the soft-shadow pass at 1 / SOFT_SHADOW_SCALE of the resolution (light_visibility.frag): the
 // 3 x 3 texels around the pixel's centre, weighted by a tent 1.5 texels wide each way (which also smooths the pass's
@@ -311,19 +311,15 @@ vec4 upsampled_visibility(ivec2 pixel, vec3 position, vec3 normal, float depth) 
 }
 #endif
 
-// Visibility of a light (0 = shadowed, 1 = lit) at the shadow lookup point `point` (shadow_lookup.glsl) of a surface
-// of unit normal `normal`: 1 for a light without shadows; an area light's from the soft-shadow pass (`upsampled`,
-// where it is >= 0; SOFT_SHADOW_SCALE 1: computed here) or, where that pass has no point on this surface nearby (a
-// sliver of a surface), one 2 x 2 filtered lookup.
-float light_visibility(int light, vec3 point, vec3 normal, float upsampled) {
+// Visibility of a light (0 = shadowed, 1 = lit) at the shadow lookup point `point` (shadow_lookup.glsl): 1 for a
+// light without shadows; an area light's from the soft-shadow pass (`upsampled`, where it is >= 0) or, where that
+// pass has no point on this surface nearby (a sliver of a surface), one 2 x 2 filtered lookup.
+float light_visibility(int light, vec3 point, float upsampled) {
     float visibility = 1.0;
     if (BIT(SHADOW_LIGHTS, light) == 1) {
         vec3 p = shadow_coordinates(light, point);
         vec2 texel = shadow_texel(light);
-#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE == 1
-        visibility = BIT(SOFT_LIGHTS, light) == 1 ? soft_visibility(light, point, normal, texel, gl_FragCoord.xy)
-                                                  : hard_visibility(light, p, texel);
-#elif SOFT_LIGHTS != 0
+#if SOFT_LIGHTS != 0
         if (BIT(SOFT_LIGHTS, light) == 1) {  // (a single filtered tap where the pass has no point: rare, and cheap)
             visibility = upsampled >= 0.0 ? upsampled : shadow_compare(light, p);
         } else {
@@ -432,7 +428,7 @@ void shade(out vec4 out_colour, out vec4 out_skin, out vec4 out_depth) {
     vec3 colour = vec3(0.0);
     vec3 skin = vec3(0.0);
     vec4 soft = vec4(-1.0);
-#if SOFT_LIGHTS != 0 && SOFT_SHADOW_SCALE > 1
+#if SOFT_LIGHTS != 0
     soft = upsampled_visibility(ivec2(gl_FragCoord.xy), g_position, geometric, g_view_depth);
 #endif
     for (int light = 0; light < LIGHT_COUNT; ++light) {
@@ -455,7 +451,7 @@ void shade(out vec4 out_colour, out vec4 out_skin, out vec4 out_depth) {
             }
         }
         vec3 point = shadow_point(light, g_position, geometric, l);
-        vec3 incident = e * light_visibility(light, point, geometric, soft[light]) * cos_theta;
+        vec3 incident = e * light_visibility(light, point, soft[light]) * cos_theta;
         colour += incident * (surface + PI * specular);
         skin += incident * (reflectance - over_black);
     }

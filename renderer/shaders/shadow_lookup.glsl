@@ -8,8 +8,9 @@
 // percentage-closer soft shadows: 16 taps of a blocker search over the region the light can be seen through (a disc
 // as wide as its penumbra for an occluder at the frustum's near end), their mean distance d_o, then 16 PCF taps over
 // a disc as wide as the penumbra the light casts from there, the disc turned per pixel by interleaved gradient noise
-// (Jimenez 2014), which supersampling averages out. Both discs have a radius of 1 texel up to a sixteenth of the
-// map's side, whatever its size, and every tap is compared with the depth of the receiver's own plane there.
+// (Jimenez 2014), whose noise soft_shadow_filter.frag filters out along each surface (and supersampling averages).
+// Both discs have a radius of 1 texel up to a sixteenth of the map's side, whatever its size, and every tap is
+// compared with the depth of the receiver's own plane there (soft_visibility says more).
 
 uniform vec3 u_light_vector[MAX_LIGHTS];     // directional: unit vector towards the light; point: position (mm)
 uniform mat4 u_shadow_matrix[MAX_LIGHTS];    // world -> shadow map texture coordinates and depth, [0, 1]^3
@@ -90,6 +91,10 @@ float penumbra(int light, float receiver, float blocker) {
     return u_light_softness[light] * (BIT(POINT_LIGHTS, light) == 1 ? gap / max(blocker, 1e-6) : gap);
 }
 
+// How far beyond half its own penumbra's width a tap of the PCF disc in front of the receiver still counts as a
+// blocker (soft_visibility): the slack that the one mean blocker distance of percentage-closer soft shadows needs.
+const float PENUMBRA_SLACK = 3.0;
+
 const vec2 DISC[16] = vec2[16](
     vec2(-0.9465, -0.1484), vec2(-0.7431, 0.5353), vec2(-0.5863, -0.5879), vec2(-0.3935, 0.1025),
     vec2(-0.2428, 0.8663), vec2(-0.1672, -0.9260), vec2(-0.0793, -0.3570), vec2(0.0626, 0.4394),
@@ -111,9 +116,15 @@ vec2 receiver_gradient(int light, vec3 point, vec3 normal, vec3 p) {
 
 // Visibility of an area light at the world point `point` of a surface of unit normal `normal` (percentage-closer
 // soft shadows, as the top of this file says), the discs turned by the noise of window position `pixel`. Each tap
-// is compared with the depth of the surface's own plane there (receiver_gradient), not the point's: over a disc
-// many texels wide, a surface at an angle to the map would otherwise shadow itself on the side nearer the light.
-float soft_visibility(int light, vec3 point, vec3 normal, vec2 texel, vec2 pixel) {
+// is compared with the depth of the surface's own plane there (receiver_gradient) or the point's, whichever is
+// nearer the light: over a disc many texels wide, a surface at an angle to the map would otherwise shadow itself on
+// the side nearer the light, and nothing farther from the light than the point can hide the light from it. A tap of
+// the PCF disc in front of that depth counts as a blocker only within (PENUMBRA_SLACK times) half the penumbra a
+// blocker at its own depth casts: where the light it hides can reach the point. A floor in front of a wall that
+// stands on it lies in front of the wall's plane but sees the light at too low an angle to hide it from the wall.
+// `disc`: the radius (mm, across the light's axis) of the disc the visibility was filtered over, half the estimated
+// penumbra's width; 0 where the blocker search found nothing (the point is lit, exactly).
+float soft_visibility(int light, vec3 point, vec3 normal, vec2 texel, vec2 pixel, out float disc) {
     // (if blocks, no early returns: llvmpipe runs the code after a return)
     vec3 p = shadow_coordinates(light, point);
     vec2 g = receiver_gradient(light, point, normal, p);
@@ -128,10 +139,11 @@ float soft_visibility(int light, vec3 point, vec3 normal, vec2 texel, vec2 pixel
     float search = clamp(reach, 1.0, most);
     float blockers = 0.0;
     int found = 0;
+    disc = 0.0;
     for (int i = 0; i < 16; ++i) {
         vec2 offset = turn * DISC[i] * search * texel;
         float depth = shadow_depth(light, p.xy + offset);
-        if (depth < p.z + dot(g, offset)) {
+        if (depth < min(p.z, p.z + dot(g, offset))) {
             blockers += light_distance(light, depth);
             ++found;
         }
@@ -142,9 +154,15 @@ float soft_visibility(int light, vec3 point, vec3 normal, vec2 texel, vec2 pixel
         float lit = 0.0;
         for (int i = 0; i < 16; ++i) {
             vec2 offset = turn * DISC[i] * width * texel;
-            lit += shadow_compare(light, vec3(p.xy + offset, p.z + dot(g, offset)));
+            float reference = min(p.z, p.z + dot(g, offset));
+            float depth = shadow_depth(light, p.xy + offset);
+            float across = width * length(DISC[i]) * u_shadow_texel[light];
+            float reaches = PENUMBRA_SLACK * 0.5 * penumbra(light, receiver, light_distance(light, depth));
+            bool blocks = depth >= reference || across <= reaches;  // (lit taps are filtered as they are)
+            lit += blocks ? shadow_compare(light, vec3(p.xy + offset, reference)) : 1.0;
         }
         visibility = lit / 16.0;
+        disc = width * u_shadow_texel[light];
     }
     return visibility;
 }
