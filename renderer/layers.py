@@ -236,9 +236,11 @@ class SurfacePass:
                 self._cover(attributes)
                 if self.soft_shadows:
                     size = (-(-width // self.soft_shadow_scale), -(-height // self.soft_shadow_scale))
-                    with pooled(*size, SOFT_PASS_TARGETS) as soft, pooled(*size, SOFT_TARGETS) as filtered:
+                    with (pooled(*size, SOFT_PASS_TARGETS) as soft, pooled(*size, SOFT_TARGETS) as across,
+                          pooled(*size, SOFT_TARGETS) as filtered):  # fmt: skip
                         self._soft_shadows(attributes, soft, height)
-                        _filter_soft_shadows(soft, filtered)
+                        _filter_soft_shadows(soft, soft.colours[0], 0, across)
+                        _filter_soft_shadows(soft, across.colours[0], 1, filtered)
                         target.bind()
                         self._shade(attributes, split, filtered.colours)
                 else:
@@ -390,12 +392,15 @@ def _unbind_units() -> None:
     GL.glActiveTexture(GL.GL_TEXTURE0)
 
 
-def _filter_soft_shadows(soft: Framebuffer, filtered: Framebuffer) -> None:
-    """The soft-shadow pass's visibility filtered on each surface (soft_shadow_filter.frag), ``soft`` (its three
-    targets) into ``filtered`` (the visibility and the plane, what the shading pass reads)."""
-    program = shared_program("fullscreen.vert", "soft_shadow_filter.frag", defines={"RADIUS": SOFT_FILTER_RADIUS})
+def _filter_soft_shadows(soft: Framebuffer, visibility: int, axis: int, filtered: Framebuffer) -> None:
+    """The visibility texture ``visibility`` filtered along ``axis`` (0: x, 1: y) on each surface
+    (soft_shadow_filter.frag), the surfaces from the soft-shadow pass's targets ``soft``, into ``filtered`` (the
+    visibility and the plane, what the shading pass reads)."""
+    defines = {"RADIUS": SOFT_FILTER_RADIUS, "AXIS": axis}
+    program = shared_program("fullscreen.vert", "soft_shadow_filter.frag", defines=defines)
     program.use()
-    for unit, (name, texture) in enumerate(zip(("u_visibility", "u_plane", "u_reach"), soft.colours, strict=True)):
+    textures = (visibility, *soft.colours[1:])
+    for unit, (name, texture) in enumerate(zip(("u_visibility", "u_plane", "u_reach"), textures, strict=True)):
         GL.glUniform1i(program.location(name), unit)
         GL.glActiveTexture(GL.GL_TEXTURE0 + unit)
         GL.glBindTexture(GL.GL_TEXTURE_2D, texture)

@@ -155,11 +155,14 @@ float soft_visibility(int light, vec3 point, vec3 normal, vec2 texel, vec2 pixel
         for (int i = 0; i < 16; ++i) {
             vec2 offset = turn * DISC[i] * width * texel;
             float reference = min(p.z, p.z + dot(g, offset));
-            float depth = shadow_depth(light, p.xy + offset);
-            float across = width * length(DISC[i]) * u_shadow_texel[light];
-            float reaches = PENUMBRA_SLACK * 0.5 * penumbra(light, receiver, light_distance(light, depth));
-            bool blocks = depth >= reference || across <= reaches;  // (lit taps are filtered as they are)
-            lit += blocks ? shadow_compare(light, vec3(p.xy + offset, reference)) : 1.0;
+            float tap = shadow_compare(light, vec3(p.xy + offset, reference));
+            if (tap < 1.0) {  // (a lit tap, which most are, needs no more)
+                float depth = shadow_depth(light, p.xy + offset);
+                float across = width * length(DISC[i]) * u_shadow_texel[light];
+                float reaches = PENUMBRA_SLACK * 0.5 * penumbra(light, receiver, light_distance(light, depth));
+                tap = depth >= reference || across <= reaches ? tap : 1.0;  // (lit texels are filtered as they are)
+            }
+            lit += tap;
         }
         visibility = lit / 16.0;
         disc = width * u_shadow_texel[light];
