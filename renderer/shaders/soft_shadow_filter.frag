@@ -48,7 +48,7 @@ void main() {
                 total += w;
             }
         }
-        visibility = sum / total;  // the texel itself always counts: total >= 1
+        visibility = total > 0.0 ? sum / total : centre;  // (the texel itself counts unless its normal is degenerate)
     }
     f_visibility = visibility;
     f_plane = plane;
