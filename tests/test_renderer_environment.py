@@ -50,6 +50,7 @@ from renderer.scene import (
     NormalMap,
     OrthographicCamera,
     PerspectiveCamera,
+    PointLight,
     Prop,
     Scattering,
     Scene,
@@ -526,6 +527,52 @@ def test_soft_shadows_agree_with_ray_casting_the_light(angle, size, scale):
     assert np.sum(1.0 - visibility[beside]) == pytest.approx(np.sum(1.0 - truth[beside]), rel=0.05)
     shadowed = beside & ((truth < 0.999) | (visibility < 0.999))
     assert np.mean(np.abs(visibility - truth)[shadowed]) < 0.1
+
+
+@pytest.mark.parametrize(("size", "scale"), [(20.0, 1), (40.0, 1), (40.0, 2)])
+def test_soft_shadows_of_a_point_light_agree_with_ray_casting_its_disc(size, scale):
+    """The sphere 30 mm across floating 35 mm over a floor, under a point light of diameter 20 or 40 mm, 200 mm up
+    and 60 mm to the side (a perspective shadow map, penumbrae size (d_r - d_o) / d_o): the floor's visibility against
+    the fraction of the light's disc (facing each floor point; 2,048 points spread over it) seen past the sphere, ray
+    cast from each pixel's point. The whole occlusion agrees within 5 %, the pixels within 0.12 on average."""
+    radius, height, res, half = 15.0, 35.0, 96, 60.0
+    light = np.array([60.0, 0.0, 200.0])
+    ball = np.eye(4)
+    ball[2, 3] = height
+
+    def render(props: list) -> np.ndarray:
+        return render_layers(Scene(
+            mesh=meshes.card(130.0, 130.0), stack=ChannelStack((), (), (0.8,) * 3), resolution=(res, res),
+            camera=OrthographicCamera(half_height=half, eye=(0.0, 0.0, 150.0), near=1.0, far=400.0),
+            lights=[PointLight(tuple(light), (1.0, 1.0, 1.0), reference_distance_mm=200.0, size_mm=size)],
+            shadow_map_size=2048, props=props, soft_shadow_scale=scale,
+        ))[..., 0]  # fmt: skip
+
+    visibility = render([Prop(meshes.sphere(radius), (0.5, 0.5, 0.5), ball)]) / render([])
+    x = -half + (np.arange(res) + 0.5) * (2.0 * half / res)
+    floor = np.stack(np.broadcast_arrays(x[None, :], -x[:, None], 0.0), axis=-1).reshape(-1, 3)
+    k = np.arange(2048) + 0.5
+    r, a = 0.5 * size * np.sqrt(k / 2048), k * np.pi * (3.0 - np.sqrt(5.0))
+    centre, truth = np.array([0.0, 0.0, height]), np.empty(len(floor))
+    for point_index, point in enumerate(floor):
+        towards = (light - point) / np.linalg.norm(light - point)
+        u = np.cross(towards, (0.0, 1.0, 0.0))
+        u /= np.linalg.norm(u)
+        v = np.cross(towards, u)
+        rays = light + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v) - point
+        length = np.linalg.norm(rays, axis=1)
+        rays /= length[:, None]
+        oc = point - centre
+        b = rays @ oc
+        c = oc @ oc - radius * radius
+        root = np.sqrt(np.maximum(b * b - c, 0.0))
+        truth[point_index] = 1.0 - np.mean((b * b > c) & (-b - root > 0.0) & (-b - root < length))
+    truth = truth.reshape(res, res)
+    beside = (x[None, :] ** 2 + x[:, None] ** 2) > (radius + 1.0) ** 2
+    assert np.sum(1.0 - truth[beside]) > 300.0
+    assert np.sum(1.0 - visibility[beside]) == pytest.approx(np.sum(1.0 - truth[beside]), rel=0.05)
+    shadowed = beside & ((truth < 0.999) | (visibility < 0.999))
+    assert np.mean(np.abs(visibility - truth)[shadowed]) < 0.12
 
 
 @pytest.mark.parametrize("scale", [1, 2])
