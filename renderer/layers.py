@@ -236,7 +236,7 @@ class SurfacePass:
                 self._cover(attributes)
                 if self.soft_shadows:
                     size = (-(-width // self.soft_shadow_scale), -(-height // self.soft_shadow_scale))
-                    with (pooled(*size, SOFT_PASS_TARGETS) as soft, pooled(*size, SOFT_TARGETS) as across,
+                    with (pooled(*size, SOFT_PASS_TARGETS) as soft, pooled(*size) as across,
                           pooled(*size, SOFT_TARGETS) as filtered):  # fmt: skip
                         self._soft_shadows(attributes, soft, height)
                         _filter_soft_shadows(soft, soft.colours[0], 0, across)
@@ -394,8 +394,8 @@ def _unbind_units() -> None:
 
 def _filter_soft_shadows(soft: Framebuffer, visibility: int, axis: int, filtered: Framebuffer) -> None:
     """The visibility texture ``visibility`` filtered along ``axis`` (0: x, 1: y) on each surface
-    (soft_shadow_filter.frag), the surfaces from the soft-shadow pass's targets ``soft``, into ``filtered`` (the
-    visibility and the plane, what the shading pass reads)."""
+    (soft_shadow_filter.frag), the surfaces from the soft-shadow pass's targets ``soft``, into ``filtered``: the
+    visibility, and the plane where it has a second target (what the shading pass reads)."""
     defines = {"RADIUS": SOFT_FILTER_RADIUS, "AXIS": axis}
     program = shared_program("fullscreen.vert", "soft_shadow_filter.frag", defines=defines)
     program.use()

@@ -462,56 +462,110 @@ def test_the_penumbra_is_the_lights_whatever_the_shadow_maps_size():
     assert abs(widths[1] - widths[0]) < 0.15 * widths[0]
 
 
+def seen_past_sphere(oc: np.ndarray, radius: float, rays: np.ndarray, length: np.ndarray | float = np.inf
+                     ) -> np.ndarray:  # fmt: skip
+    """For points at ``oc`` (N x 3, mm, from the centre of a sphere of ``radius`` mm), the fraction of their ``rays``
+    (unit vectors: (n, 3), the same for every point, or (N, n, 3)) that miss the sphere before ``length`` mm along
+    them (a scalar or N x n), each ray tested against the sphere analytically."""
+    b = oc @ rays.T if rays.ndim == 2 else np.einsum("pi,pri->pr", oc, rays)  # N x n: along each ray
+    c = np.sum(oc * oc, axis=1)[:, None] - radius * radius
+    near = -b - np.sqrt(np.maximum(b * b - c, 0.0))  # the first crossing's distance along the ray
+    return 1.0 - np.mean((b * b > c) & (near > 0.0) & (near < length), axis=1)
+
+
+def disc_spiral(n: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points spread evenly over a disc of ``radius`` (a Vogel spiral): their distances from the centre and
+    angles."""
+    k = np.arange(n) + 0.5
+    return radius * np.sqrt(k / n), k * np.pi * (3.0 - np.sqrt(5.0))
+
+
 def ray_cast_visibility(points: np.ndarray, centre: np.ndarray, radius: float, towards: np.ndarray,
                         angle_deg: float, n: int = 2048) -> np.ndarray:  # fmt: skip
     """The fraction of a directional light of angular diameter ``angle_deg`` (unit vector ``towards`` it) seen from
     each of ``points`` (N x 3, mm) past a sphere: ``n`` directions spread evenly over the light's disc (a Vogel
-    spiral in the tangent plane, radius tan(angle / 2)), each ray tested against the sphere analytically."""
+    spiral in the tangent plane, radius tan(angle / 2))."""
     u = np.cross(towards, (0.0, 1.0, 0.0) if abs(towards[1]) < 0.9 else (1.0, 0.0, 0.0))
     u /= np.linalg.norm(u)
     v = np.cross(towards, u)
-    k = np.arange(n) + 0.5
-    r, a = np.tan(np.radians(angle_deg) / 2.0) * np.sqrt(k / n), k * np.pi * (3.0 - np.sqrt(5.0))
+    r, a = disc_spiral(n, np.tan(np.radians(angle_deg) / 2.0))
     rays = towards + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    seen = np.empty(len(points))
-    for start in range(0, len(points), 512):
-        oc = points[start : start + 512] - centre
-        b = oc @ rays.T
-        c = np.sum(oc * oc, axis=1)[:, None] - radius * radius
-        root = np.sqrt(np.maximum(b * b - c, 0.0))
-        seen[start : start + 512] = 1.0 - np.mean((b * b > c) & (-b - root > 0.0), axis=1)
-    return seen
+    return np.concatenate([seen_past_sphere(points[start : start + 512] - centre, radius, rays)
+                           for start in range(0, len(points), 512)])  # fmt: skip
 
 
-def sphere_over_floor(angle: float, size: int, scale: int, res: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A sphere 30 mm across floating 35 mm over a floor, a wall behind (the scene as large as a backdrop makes it), a
-    light ``angle`` degrees wide from 27 degrees off the vertical, a map of ``size`` texels, soft shadows in blocks
-    of ``scale`` pixels, seen from above in ``res`` x ``res`` pixels: the floor's visibility (the render over the
-    render without the sphere), the fraction of the light's disc seen past the sphere ray cast from each pixel's
-    point, and where the camera sees the floor past the sphere."""
-    radius, height, half = 15.0, 35.0, 60.0
-    travel = np.array([0.5, 0.0, -1.0]) / np.sqrt(1.25)
-    wall = np.eye(4)
-    wall[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
-    wall[:3, 3] = (0.0, 100.0, 100.0)
+def ray_cast_point_visibility(points: np.ndarray, centre: np.ndarray, radius: float, light: np.ndarray,
+                              size: float, n: int = 2048) -> np.ndarray:  # fmt: skip
+    """The fraction of a point light's disc of diameter ``size`` (mm) at ``light``, facing each of ``points`` (N x 3,
+    mm), seen from it past a sphere: rays to ``n`` points spread evenly over the disc (a Vogel spiral)."""
+    r, a = disc_spiral(n, 0.5 * size)
+    seen = []
+    for start in range(0, len(points), 256):
+        chunk = points[start : start + 256]
+        towards = light - chunk
+        towards /= np.linalg.norm(towards, axis=1, keepdims=True)
+        u = np.cross(towards, (0.0, 1.0, 0.0))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        v = np.cross(towards, u)
+        spots = light + r[:, None, None] * (np.cos(a)[:, None, None] * u + np.sin(a)[:, None, None] * v)  # n, N, 3
+        rays = np.swapaxes(spots, 0, 1) - chunk[:, None]
+        length = np.linalg.norm(rays, axis=2)
+        seen.append(seen_past_sphere(chunk - centre, radius, rays / length[..., None], length))
+    return np.concatenate(seen)
+
+
+#: The sphere over the floor of the soft-shadow tests: radius and height of its centre (mm), and half the width of
+#: the floor the camera sees (mm).
+BALL_RADIUS, BALL_HEIGHT, VIEW_HALF = 15.0, 35.0, 60.0
+
+
+def floor_under_sphere(light, size: int, scale: int, res: int, floor: float = 300.0,
+                       wall: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """A sphere 30 mm across floating 35 mm over a floor ``floor`` mm wide (with a wall behind: the scene as large as
+    a backdrop makes it), lit by ``light``, a map of ``size`` texels, soft shadows in blocks of ``scale`` pixels, seen
+    from above in ``res`` x ``res`` pixels: the floor's visibility (the render over the render without the sphere),
+    each pixel's point on the floor (res^2 x 3, mm) and where the camera sees the floor past the sphere."""
+    back = np.eye(4)
+    back[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
+    back[:3, 3] = (0.0, 100.0, 100.0)
+    walls = [Prop(meshes.card(300.0, 200.0), (0.5, 0.5, 0.5), back)] if wall else []
     ball = np.eye(4)
-    ball[2, 3] = height
+    ball[2, 3] = BALL_HEIGHT
 
     def render(props: list) -> np.ndarray:
         return render_layers(Scene(
-            mesh=meshes.card(300.0, 300.0), stack=ChannelStack((), (), (0.8,) * 3), resolution=(res, res),
-            camera=OrthographicCamera(half_height=half, eye=(0.0, 0.0, 150.0), near=1.0, far=400.0),
-            lights=[DirectionalLight(tuple(travel), (1.0, 1.0, 1.0), angle_deg=angle)], shadow_map_size=size,
-            props=[*props, Prop(meshes.card(300.0, 200.0), (0.5, 0.5, 0.5), wall)], soft_shadow_scale=scale,
+            mesh=meshes.card(floor, floor), stack=ChannelStack((), (), (0.8,) * 3), resolution=(res, res),
+            camera=OrthographicCamera(half_height=VIEW_HALF, eye=(0.0, 0.0, 150.0), near=1.0, far=400.0),
+            lights=[light], shadow_map_size=size, props=[*props, *walls], soft_shadow_scale=scale,
         ))[..., 0]  # fmt: skip
 
-    visibility = render([Prop(meshes.sphere(radius), (0.5, 0.5, 0.5), ball)]) / render([])
-    x = -half + (np.arange(res) + 0.5) * (2.0 * half / res)
-    floor = np.stack(np.broadcast_arrays(x[None, :], -x[:, None], 0.0), axis=-1).reshape(-1, 3)
-    truth = ray_cast_visibility(floor, np.array([0.0, 0.0, height]), radius, -travel, angle).reshape(res, res)
-    beside = (x[None, :] ** 2 + x[:, None] ** 2) > (radius + 1.0) ** 2
-    return visibility, truth, beside
+    visibility = render([Prop(meshes.sphere(BALL_RADIUS), (0.5, 0.5, 0.5), ball)]) / render([])
+    x = -VIEW_HALF + (np.arange(res) + 0.5) * (2.0 * VIEW_HALF / res)
+    points = np.stack(np.broadcast_arrays(x[None, :], -x[:, None], 0.0), axis=-1).reshape(-1, 3)
+    beside = (x[None, :] ** 2 + x[:, None] ** 2) > (BALL_RADIUS + 1.0) ** 2
+    return visibility, points, beside
+
+
+def sphere_over_floor(angle: float, size: int, scale: int, res: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`floor_under_sphere` (a wall behind) under a directional light ``angle`` degrees wide from 27 degrees
+    off the vertical: the floor's visibility, the fraction of the light's disc seen past the sphere ray cast from
+    each pixel's point, and where the camera sees the floor past the sphere."""
+    travel = np.array([0.5, 0.0, -1.0]) / np.sqrt(1.25)
+    light = DirectionalLight(tuple(travel), (1.0, 1.0, 1.0), angle_deg=angle)
+    visibility, points, beside = floor_under_sphere(light, size, scale, res)
+    truth = ray_cast_visibility(points, np.array([0.0, 0.0, BALL_HEIGHT]), BALL_RADIUS, -travel, angle)
+    return visibility, truth.reshape(res, res), beside
+
+
+def assert_agrees_with_ray_casting(visibility: np.ndarray, truth: np.ndarray, beside: np.ndarray,
+                                   mean_error: float) -> None:  # fmt: skip
+    """A shadow of some 300 pixels' worth whose whole occlusion (summed over the floor the camera sees past the
+    sphere) agrees with ray casting within 5 %, its pixels within ``mean_error`` on average."""
+    assert np.sum(1.0 - truth[beside]) > 300.0
+    assert np.sum(1.0 - visibility[beside]) == pytest.approx(np.sum(1.0 - truth[beside]), rel=0.05)
+    shadowed = beside & ((truth < 0.999) | (visibility < 0.999))
+    assert np.mean(np.abs(visibility - truth)[shadowed]) < mean_error
 
 
 @pytest.mark.parametrize(("angle", "size", "scale"),
@@ -522,57 +576,21 @@ def test_soft_shadows_agree_with_ray_casting_the_light(angle, size, scale):
     occlusion (summed over the floor the camera sees past the sphere) agrees with ray casting within 5 % on maps of
     1024 and 4096 texels, whether soft shadows are computed at every pixel or at half resolution, the pixels within
     0.1 on average: no penumbra narrowed by the map's size, no floor or wall shadowing itself."""
-    visibility, truth, beside = sphere_over_floor(angle, size, scale, 96)
-    assert np.sum(1.0 - truth[beside]) > 300.0  # a shadow of some 300 pixels' worth
-    assert np.sum(1.0 - visibility[beside]) == pytest.approx(np.sum(1.0 - truth[beside]), rel=0.05)
-    shadowed = beside & ((truth < 0.999) | (visibility < 0.999))
-    assert np.mean(np.abs(visibility - truth)[shadowed]) < 0.1
+    assert_agrees_with_ray_casting(*sphere_over_floor(angle, size, scale, 96), mean_error=0.1)
 
 
 @pytest.mark.parametrize(("size", "scale"), [(20.0, 1), (40.0, 1), (40.0, 2)])
 def test_soft_shadows_of_a_point_light_agree_with_ray_casting_its_disc(size, scale):
-    """The sphere 30 mm across floating 35 mm over a floor, under a point light of diameter 20 or 40 mm, 200 mm up
-    and 60 mm to the side (a perspective shadow map, penumbrae size (d_r - d_o) / d_o): the floor's visibility against
-    the fraction of the light's disc (facing each floor point; 2,048 points spread over it) seen past the sphere, ray
-    cast from each pixel's point. The whole occlusion agrees within 5 %, the pixels within 0.12 on average."""
-    radius, height, res, half = 15.0, 35.0, 96, 60.0
+    """The sphere over a floor 130 mm wide (:func:`floor_under_sphere`, no wall: the light must lie outside the
+    scene), under a point light of diameter 20 or 40 mm, 200 mm up and 60 mm to the side (a perspective shadow map,
+    penumbrae size (d_r - d_o) / d_o): the floor's visibility against the fraction of the light's disc (facing each
+    floor point; 2,048 points spread over it) seen past the sphere, ray cast from each pixel's point. The whole
+    occlusion agrees within 5 %, the pixels within 0.12 on average."""
     light = np.array([60.0, 0.0, 200.0])
-    ball = np.eye(4)
-    ball[2, 3] = height
-
-    def render(props: list) -> np.ndarray:
-        return render_layers(Scene(
-            mesh=meshes.card(130.0, 130.0), stack=ChannelStack((), (), (0.8,) * 3), resolution=(res, res),
-            camera=OrthographicCamera(half_height=half, eye=(0.0, 0.0, 150.0), near=1.0, far=400.0),
-            lights=[PointLight(tuple(light), (1.0, 1.0, 1.0), reference_distance_mm=200.0, size_mm=size)],
-            shadow_map_size=2048, props=props, soft_shadow_scale=scale,
-        ))[..., 0]  # fmt: skip
-
-    visibility = render([Prop(meshes.sphere(radius), (0.5, 0.5, 0.5), ball)]) / render([])
-    x = -half + (np.arange(res) + 0.5) * (2.0 * half / res)
-    floor = np.stack(np.broadcast_arrays(x[None, :], -x[:, None], 0.0), axis=-1).reshape(-1, 3)
-    k = np.arange(2048) + 0.5
-    r, a = 0.5 * size * np.sqrt(k / 2048), k * np.pi * (3.0 - np.sqrt(5.0))
-    centre, truth = np.array([0.0, 0.0, height]), np.empty(len(floor))
-    for point_index, point in enumerate(floor):
-        towards = (light - point) / np.linalg.norm(light - point)
-        u = np.cross(towards, (0.0, 1.0, 0.0))
-        u /= np.linalg.norm(u)
-        v = np.cross(towards, u)
-        rays = light + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v) - point
-        length = np.linalg.norm(rays, axis=1)
-        rays /= length[:, None]
-        oc = point - centre
-        b = rays @ oc
-        c = oc @ oc - radius * radius
-        root = np.sqrt(np.maximum(b * b - c, 0.0))
-        truth[point_index] = 1.0 - np.mean((b * b > c) & (-b - root > 0.0) & (-b - root < length))
-    truth = truth.reshape(res, res)
-    beside = (x[None, :] ** 2 + x[:, None] ** 2) > (radius + 1.0) ** 2
-    assert np.sum(1.0 - truth[beside]) > 300.0
-    assert np.sum(1.0 - visibility[beside]) == pytest.approx(np.sum(1.0 - truth[beside]), rel=0.05)
-    shadowed = beside & ((truth < 0.999) | (visibility < 0.999))
-    assert np.mean(np.abs(visibility - truth)[shadowed]) < 0.12
+    point_light = PointLight(tuple(light), (1.0, 1.0, 1.0), reference_distance_mm=200.0, size_mm=size)
+    visibility, points, beside = floor_under_sphere(point_light, 2048, scale, 96, floor=130.0, wall=False)
+    truth = ray_cast_point_visibility(points, np.array([0.0, 0.0, BALL_HEIGHT]), BALL_RADIUS, light, size)
+    assert_agrees_with_ray_casting(visibility, truth.reshape(96, 96), beside, mean_error=0.12)
 
 
 @pytest.mark.parametrize("scale", [1, 2])

@@ -10,13 +10,13 @@
 // offset d (texels) along the axis, over the texels up to RADIUS away: a kernel at most a quarter of the penumbra's
 // width (2 r) from its centre to its edge, so that a penumbra, linear across where the kernel lies wholly inside it,
 // keeps its shape (its 10-90 % width grows by at most 4 %, tests/test_renderer_environment.py); a penumbra narrower
-// than 4 texels is kept as it is. A neighbour counts only where it lies on the texel's surface: its
-// normal within 25 degrees of the texel's, and its point within 15 degrees of the texel's plane as seen from the
-// texel's point (not behind a silhouette or across a step). Where r is 0 the texel is lit by every light, exactly,
-// and kept.
+// than 4 texels is kept as it is. A neighbour counts only where it lies on the texel's surface: its normal within 25
+// degrees of the texel's, and its point within 15 degrees of the texel's plane as seen from the texel's point (not
+// behind a silhouette or across a step). Where r is 0 the texel is lit by every light, exactly, and kept.
 //
 // Inputs: the visibility to filter, the pass's plane and reach targets. Outputs: the filtered visibility, and the
-// plane as it was (the shading pass reads both). Compile-time constants: RADIUS (texels), AXIS (0: x, 1: y).
+// plane as it was, for the shading pass (the first pass's target has no room for it, and it is dropped there).
+// Compile-time constants: RADIUS (texels), AXIS (0: x, 1: y).
 
 uniform sampler2D u_visibility;   // light i's visibility in channel i (AXIS 1: as filtered along x)
 uniform sampler2D u_plane;        // unit normal n, n.p (mm); 0 where no surface shows
