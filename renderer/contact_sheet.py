@@ -148,20 +148,24 @@ def read_frame(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(colour[..., :3], dtype=np.float32)
 
 
-def _fitted(frame: np.ndarray, cell_size: tuple[int, int]) -> oiio.ImageBuf:
-    """The frame resized to fit ``cell_size`` with its aspect ratio kept: each new pixel the mean of the frame over its
-    area when shrinking (OpenCV's INTER_AREA: no aliasing, a flat region keeps its value), bicubic when enlarging."""
+def _codes(encoded: np.ndarray) -> np.ndarray:
+    """8-bit codes of sRGB-encoded values: ``rint(255 clip(v, 0, 1))``."""
+    return np.rint(np.clip(encoded, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _fitted(frame: np.ndarray, cell_size: tuple[int, int]) -> np.ndarray:
+    """The frame resized to fit ``cell_size`` with its aspect ratio kept, as 8-bit codes: each new pixel the mean of
+    the frame over its area when shrinking (OpenCV's INTER_AREA: no aliasing, a flat region keeps its value), bicubic
+    when enlarging."""
     height, width = frame.shape[:2]
     scale = min(cell_size[0] / width, cell_size[1] / height)
     new_w, new_h = max(1, round(width * scale)), max(1, round(height * scale))
     if (new_w, new_h) != (width, height):
         frame = cv2.resize(frame, (new_w, new_h), interpolation=cv2.INTER_AREA if scale < 1.0 else cv2.INTER_CUBIC)
-    fitted = oiio.ImageBuf(oiio.ImageSpec(new_w, new_h, 3, oiio.FLOAT))
-    fitted.set_pixels(oiio.ROI(0, new_w, 0, new_h, 0, 1, 0, 3), np.ascontiguousarray(frame, dtype=np.float32))
-    return fitted
+    return _codes(frame)
 
 
-def _cells(frames: Sequence[str | Path], cell_size: tuple[int, int]) -> list[oiio.ImageBuf]:
+def _cells(frames: Sequence[str | Path], cell_size: tuple[int, int]) -> list[np.ndarray]:
     """Each frame read (:func:`read_frame`) and fitted to its cell (:func:`_fitted`), on a thread per core (reading,
     decoding, encoding and resizing run outside Python's lock): only the cells stay in memory, not the frames. The
     first frame in order that cannot be read raises its FrameError."""
@@ -240,15 +244,18 @@ def make_sheet(
                           captions=captions is not None)  # fmt: skip
     cells = _cells(frames, layout.cell_size)  # all read first: a bad file fails before any drawing
 
-    sheet = oiio.ImageBuf(oiio.ImageSpec(layout.width, layout.height, 3, oiio.FLOAT))
-    oiio.ImageBufAlgo.fill(sheet, BACKGROUND)
+    # Laid out in 8-bit codes (a float sheet of a long line is gigabytes), the text then drawn over them.
+    codes = np.empty((layout.height, layout.width, 3), np.uint8)
+    codes[...] = _codes(np.asarray(BACKGROUND))
     w, h = layout.cell_size
     for i, fitted in enumerate(cells):
-        row, col = divmod(i, layout.n_cols)
-        x, y = layout.cell_origin(row, col)
-        fw, fh = fitted.spec().width, fitted.spec().height
-        if not oiio.ImageBufAlgo.paste(sheet, x + (w - fw) // 2, y + (h - fh) // 2, 0, 0, fitted):
-            raise RuntimeError(f"cannot paste {frames[i]}: {sheet.geterror()}")
+        x, y = layout.cell_origin(*divmod(i, layout.n_cols))
+        fh, fw = fitted.shape[:2]
+        x, y = x + (w - fw) // 2, y + (h - fh) // 2
+        codes[y : y + fh, x : x + fw] = fitted
+    sheet = oiio.ImageBuf(oiio.ImageSpec(layout.width, layout.height, 3, oiio.UINT8))
+    sheet.set_pixels(oiio.ROI(0, layout.width, 0, layout.height, 0, 1, 0, 3), codes)
+    del codes, cells
 
     m, f = layout.margin, font_size
     if header:
@@ -269,11 +276,8 @@ def make_sheet(
         text = _shortened(caption, w, f)
         _text(sheet, x + w // 2, y + h + layout.caption_height // 2, text, f, box, alignx="center", aligny="center")
 
-    codes = np.rint(np.clip(sheet.get_pixels(oiio.FLOAT), 0.0, 1.0) * 255.0).astype(np.uint8)
-    out = oiio.ImageBuf(oiio.ImageSpec(layout.width, layout.height, 3, oiio.UINT8))
-    out.set_pixels(oiio.ROI(0, layout.width, 0, layout.height, 0, 1, 0, 3), codes)
-    out.specmod().attribute("oiio:ColorSpace", "sRGB")
-    return out
+    sheet.specmod().attribute("oiio:ColorSpace", "sRGB")
+    return sheet
 
 
 def write_sheet(buf: oiio.ImageBuf, path: str | Path) -> None:

@@ -646,3 +646,50 @@ def test_the_camera_aims_at_the_mesh_centre_moved_by_aim_mm(tmp_path, material_f
     with pytest.raises(InputError) as err:
         load_scene(path)
     assert err.value.field.startswith("camera.aim_mm")
+
+
+def test_reinhard_maps_every_frame_of_a_turntable_with_the_scenes_white_card(tmp_path, material_file, capsys):
+    """The curve's white is the luminance of a white card facing the scene's one light (its radiance's luminance),
+    not each frame's brightest pixel: the backdrop, the same linear value in every frame, is the same PNG code in
+    every frame while the card turning away changes what is brightest."""
+    extra = '\n[backdrop]\nkind = "gradient"\n[turntable]\nframes = 3\n[output]\ntone_map = "reinhard"\n'
+    assert cli.main(["render", str(write_scene(tmp_path, material_file, extra)), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    white = float(np.dot([0.2126, 0.7152, 0.0722], RADIANCE))
+    brightest, backdrops = [], []
+    for i in range(3):
+        linear, header = read_exr(tmp_path / "out" / f"frame_{i:03d}.exr")
+        assert header["tone_map"] == f"reinhard +0 EV, white {white:.4g} (PNG only)"
+        luminance = linear @ [0.2126, 0.7152, 0.0722]
+        scale = np.where(luminance > 0.0, (1.0 + luminance / white**2) / (1.0 + luminance), 1.0)
+        expected = np.rint(srgb_encode(np.clip(linear * scale[..., None], 0.0, 1.0)) * 255.0)
+        png = read_png(tmp_path / "out" / f"frame_{i:03d}.png").astype(float)
+        assert np.abs(png - expected).max() <= 1.0
+        brightest.append(luminance.max())
+        backdrops.append(png[0, 0])
+    assert max(brightest) > 1.5 * min(brightest)  # a per-frame white would map the backdrop differently
+    np.testing.assert_array_equal(backdrops[0], backdrops[1])
+    np.testing.assert_array_equal(backdrops[0], backdrops[2])
+
+
+def test_a_sheet_shows_rendered_frames_as_their_tone_mapped_pngs(tmp_path, material_file, capsys):
+    """The sheet shows what the frames' PNGs and videos show: a cell as large as the frame is the frame's PNG code for
+    code, not its EXR sRGB encoded without the scene's tone curve (the two differ here)."""
+    from kmpipe.stages.sheet import frame_labels, write_contact_sheet
+    from renderer.contact_sheet import sheet_layout
+
+    extra = '\n[turntable]\nframes = 2\n[output]\ntone_map = "reinhard"\nexposure_ev = 1.0\n'
+    assert cli.main(["render", str(write_scene(tmp_path, material_file, extra)), "-o", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    frames = [tmp_path / "out" / f"frame_{i:03d}.exr" for i in range(2)]
+    written = write_contact_sheet(frames, tmp_path / "sheet.png", cell=SIZE, header="")
+    sheet = read_png(written.path)
+    labels = frame_labels(frames, 1, 2)
+    layout = sheet_layout(labels.rows, labels.columns, cell_size=(SIZE, SIZE))
+    for column, frame in enumerate(frames):
+        x, y = layout.cell_origin(0, column)
+        png = read_png(frame.with_suffix(".png"))
+        np.testing.assert_array_equal(sheet[y : y + SIZE, x : x + SIZE], png)
+    linear, _ = read_exr(frames[0])
+    untoned = np.rint(srgb_encode(np.clip(linear, 0.0, 1.0)) * 255.0)
+    assert np.abs(untoned - read_png(frames[0].with_suffix(".png"))).max() > 20

@@ -37,10 +37,10 @@ FRAMES_PER_TASK = 4
 
 
 #: Largest contact sheet in pixels: a long line's sheet has cells smaller than 256 px to stay under it (a sheet takes
-#: about 40 bytes a pixel while it is made: 2.6 GB).
+#: about 20 bytes a pixel while it is made: 1.3 GB).
 SHEET_PIXELS = 64_000_000
-#: Largest total of frame pixels a contact sheet reads (all at once, 12 bytes a pixel: 3.6 GB); a line whose sheet
-#: would read more is refused at planning.
+#: Largest total of frame pixels a contact sheet reads (a frame per core at a time, each let go once fitted to its
+#: cell); a line whose sheet would read more is refused at planning.
 SHEET_FRAME_PIXELS = 300_000_000
 
 
@@ -418,8 +418,7 @@ def _plan_review(recipe: Recipe, out_dir: Path, claims: _Claims, add, material_k
 def _sheet_cell(recipe: Recipe, columns: int, sheet_rows: int, reads: int) -> int:
     """The side of the contact sheet's cells (``sheet_rows`` rows of ``columns``): 256 px, less for a line so long
     that the sheet would pass :data:`SHEET_PIXELS`; refused (InputError at ``outputs.sheet``) if the cells would be
-    under 16 px or the frames the sheet reads (``reads`` pixels) pass :data:`SHEET_FRAME_PIXELS` (every one is in
-    memory while the sheet is made)."""
+    under 16 px or the frames the sheet reads (``reads`` pixels) pass :data:`SHEET_FRAME_PIXELS`."""
     cell = min(256, math.isqrt(SHEET_PIXELS // (columns * sheet_rows)) - 8)  # cells and the 8 px margins between them
     if cell < 16 or reads > SHEET_FRAME_PIXELS:
         raise InputError(

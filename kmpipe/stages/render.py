@@ -36,6 +36,7 @@ from renderer.image_io import write_exr, write_png
 from renderer.layers import render_layers
 from renderer.scene import DirectionalLight, OrthographicCamera, PerspectiveCamera, PointLight
 from renderer.scene import Scene as RendererScene
+from renderer.scene_white import scene_white
 from renderer.skin import render_skin
 from renderer.stack import LOBE_COVER_MM, ChannelStack, LayerTable, Precomposed, Specular
 from renderer.tone_map import tone_map
@@ -331,7 +332,6 @@ def render_scene(
         "render_mode": plan.mode,
         "illuminant": info.scene.illuminant,
         "camera_elevation_deg": float(info.camera.elevation_deg),
-        "tone_map": f"{info.output.tone_map} {info.output.exposure_ev:+g} EV (PNG only)",
         "antialias": antialiasing.describe(plan.antialiasing, plan.antialias(scene)),
     }
     blur = plan.scattering if scattering else None
@@ -350,6 +350,10 @@ def render_scene(
     render = render_skin if on_skin else render_layers
     written = []
     scenes = renderer_scenes(scene, plan, [angles[i] for i in chosen], scattering=scattering)
+    # Reinhard's white: the scene's white card (renderer.scene_white), the same for every frame under these lights.
+    white = scene_white(scenes[0]) if info.output.tone_map == "reinhard" and scenes else None
+    header["tone_map"] = f"{info.output.tone_map} {info.output.exposure_ev:+g} EV" + (
+        "" if white is None else f", white {white:.4g}") + " (PNG only)"  # fmt: skip
     # A frame is written (tone mapped, encoded, fsynced) by a thread of its own while the next one renders; at most
     # one write waits, and its error surfaces here before the next frame is handed over. on_frame follows the writes.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kmpipe-frame-writer") as writer:
@@ -377,7 +381,7 @@ def render_scene(
                     finish()
                 last = folder == folders[-1]
                 pending = (
-                    writer.submit(_write_frame, exr, png, image, frame_header, info.output),
+                    writer.submit(_write_frame, exr, png, image, frame_header, info.output, white),
                     done + 1 if last else None,
                 )
                 written += [exr, png]
@@ -407,9 +411,9 @@ def _measured_plan(scene: Scene) -> ScenePlan:
     return dataclasses.replace(plan, notes=(*plan.notes, note))
 
 
-def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) -> None:
+def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output, white: float | None) -> None:
     """Write one frame as a pair: the linear EXR (32-bit float, with ``header``) and the PNG tone mapped as
-    ``output`` (the scene's [output]) says.
+    ``output`` (the scene's [output]) says, with Reinhard's ``white`` (the scene's, not the frame's).
 
     Each file is written atomically (renderer.image_io); the old EXR is removed first and the new one written
     last, so an exit at any moment leaves no EXR (what caches and readers look for) without its PNG. A frame with
@@ -418,7 +422,7 @@ def _write_frame(exr: Path, png: Path, image: np.ndarray, header: dict, output) 
     bad = int(np.count_nonzero(~np.isfinite(image)))
     if bad:
         raise RuntimeError(f"the renderer gave {bad} NaN or infinite values for {exr}; nothing was written for it")
-    tone_mapped = tone_map(image, output.tone_map, output.exposure_ev)
+    tone_mapped = tone_map(image, output.tone_map, output.exposure_ev, white)
     exr.unlink(missing_ok=True)
     write_png(png, tone_mapped)
     write_exr(exr, image, header, half=False)

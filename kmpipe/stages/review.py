@@ -81,6 +81,7 @@ class _Tiles:
         from kmpipe.stages import staging
         from kmpipe.stages.render import renderer_scenes
         from kmpipe.stages.render_plan import plan_scene
+        from renderer.scene_white import scene_white
         from renderer.skin import render_skin
         from renderer.tone_map import tone_map
 
@@ -92,7 +93,8 @@ class _Tiles:
         if self.occlusion is None and plan.ambient_occlusion:
             self.occlusion = staging.occlusion(scene)
         [frame] = renderer_scenes(scene, plan, [0.0], occlusion=self.occlusion)  # the row's head: baked once
-        return tone_map(render_skin(frame), "reinhard")
+        # One tone curve for every tile (the white card of their common light), so tiles compare as they are lit.
+        return tone_map(render_skin(frame), "reinhard", white=scene_white(frame))
 
 
 def _radius(material, thickness_mm: float, skin: np.ndarray, illuminant: str) -> float | None:

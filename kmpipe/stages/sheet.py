@@ -40,16 +40,9 @@ class SheetWritten:
     size: tuple[int, int]
 
 
-def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabels:
-    """Row and column labels and header of a sheet of ``frames`` (row-major) in ``n_rows`` x ``n_cols`` cells.
-
-    Frames that ``kmpipe render`` wrote (EXR with ``product`` and ``camera_azimuth_deg`` attributes) give
-    "product · shade" per row and per frame (the product alone when the shade is its name; followed by the rendered
-    colour's 95 % uncertainty, ``±0.21``, where the frame's ``colour_uncertainty`` attribute gives one; marked with
-    :data:`FAILED_MARK` when the frame's ``validation`` attribute says it failed), the camera's azimuth in degrees per
-    column (from the first row) and "scene · illuminant · today's date" across the top; any other frames give their
-    file stems and no header.
-    """
+def frame_headers(frames: Sequence[Path]) -> list[dict]:
+    """Each frame's EXR header ({} for another file, or one that cannot be read: the sheet names it when it reads
+    the pixels)."""
     from renderer.image_io import read_header
 
     headers = []
@@ -57,7 +50,31 @@ def frame_labels(frames: Sequence[Path], n_rows: int, n_cols: int) -> SheetLabel
         try:
             headers.append(read_header(path) if path.suffix.lower() == ".exr" else {})
         except OSError:
-            headers.append({})  # unreadable: make_sheet names it
+            headers.append({})
+    return headers
+
+
+def shown_image(frame: Path, header: dict) -> Path:
+    """The image a sheet shows for ``frame``: the PNG that ``kmpipe render`` wrote beside its EXR (tone mapped as
+    the scene's ``[output]`` says, as the frame's videos and a studio's viewers show it; the EXR's header then names
+    its ``tone_map``), else the frame itself (an EXR is then sRGB encoded without a tone curve)."""
+    png = frame.with_suffix(".png")
+    return png if "tone_map" in header and png.is_file() else frame
+
+
+def frame_labels(
+    frames: Sequence[Path], n_rows: int, n_cols: int, headers: Sequence[dict] | None = None
+) -> SheetLabels:
+    """Row and column labels and header of a sheet of ``frames`` (row-major) in ``n_rows`` x ``n_cols`` cells.
+
+    Frames that ``kmpipe render`` wrote (EXR with ``product`` and ``camera_azimuth_deg`` attributes) give
+    "product · shade" per row and per frame (the product alone when the shade is its name; followed by the rendered
+    colour's 95 % uncertainty, ``±0.21``, where the frame's ``colour_uncertainty`` attribute gives one; marked with
+    :data:`FAILED_MARK` when the frame's ``validation`` attribute says it failed), the camera's azimuth in degrees per
+    column (from the first row) and "scene · illuminant · today's date" across the top; any other frames give their
+    file stems and no header. ``headers``: the frames' headers, if read already (:func:`frame_headers`).
+    """
+    headers = frame_headers(frames) if headers is None else headers
     if not all("product" in h and "camera_azimuth_deg" in h for h in headers):
         rows = [frames[r * n_cols].stem for r in range(n_rows)]
         return SheetLabels(rows, [p.stem for p in frames[:n_cols]], "", [p.stem for p in frames])
@@ -88,7 +105,8 @@ def write_contact_sheet(
     captions: bool = False,
 ) -> SheetWritten:
     """Lay ``frames`` (EXR, linear, encoded to sRGB; or PNG) out row-major in ``columns`` columns (default: up to 4)
-    and write the sheet to ``output`` (PNG) in cells ``cell`` px square.
+    and write the sheet to ``output`` (PNG) in cells ``cell`` px square. A frame ``kmpipe render`` wrote is shown as
+    its tone-mapped PNG (:func:`shown_image`).
 
     Labels and header left None come from the frames (:func:`frame_labels`); given labels must match the grid
     (InputError naming ``--row-labels`` or ``--column-labels``). With ``captions`` every cell is labelled under it
@@ -117,7 +135,8 @@ def write_contact_sheet(
     n_rows = -(-len(frames) // n_cols)
     for path in frames:
         files.regular_file(path, "image")
-    labels = frame_labels(frames, n_rows, n_cols)
+    headers = frame_headers(frames)
+    labels = frame_labels(frames, n_rows, n_cols, headers)
     default_columns, default_rows = ([""] * n_cols, [""] * n_rows) if captions else (labels.columns, labels.rows)
     chosen_columns = list(column_labels) if column_labels is not None else default_columns
     chosen_rows = list(row_labels) if row_labels is not None else default_rows
@@ -128,7 +147,7 @@ def write_contact_sheet(
             )
     try:
         sheet = make_sheet(
-            frames,
+            [shown_image(path, header) for path, header in zip(frames, headers, strict=True)],
             rows=chosen_rows,
             columns=chosen_columns,
             grid=(n_rows, n_cols),
