@@ -34,19 +34,27 @@ CONFIGURATIONS = (
     ("local, 2 processes", ["--workers", "2"], {}),
     ("dask local cluster, 2 workers", ["--executor", "dask", "--workers", "2"], {}),
 )
-#: The 16-product line's configurations; the last one renders through llvmpipe on one thread (LP_NUM_THREADS=1),
-#: to show how much of one process's rendering already runs on the second core.
-SCALING = (*CONFIGURATIONS, ("local, 1 process, llvmpipe on 1 thread", ["--workers", "1"], {"LP_NUM_THREADS": "1"}))
+#: The 16-product line's configurations, each with the cores it may use (None: all); the last two render through
+#: llvmpipe on one thread (LP_NUM_THREADS=1), to show how much of one process's rendering already runs on the second
+#: core, and then on one core alone (its affinity), to show how the workers scale with the cores they are given.
+ONE_THREAD = {"LP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+SCALING = (
+    *((label, options, env, None) for label, options, env in CONFIGURATIONS),
+    ("local, 1 process, llvmpipe on 1 thread", ["--workers", "1"], {"LP_NUM_THREADS": "1"}, None),
+    ("local, 1 process on 1 core", ["--workers", "1"], ONE_THREAD, {0}),
+)
 TARGET_S, CACHED_TARGET_S = 120.0, 3.0
 SAMPLES = ("L1", "L2", "F1", "F2", "B1", "E1")
 
 
-def _kmpipe(*args: str, env: dict[str, str] | None = None) -> tuple[float, float]:
-    """Wall and CPU seconds (user + system, of the command and the processes it started) of ``kmpipe ARGS``."""
+def _kmpipe(*args: str, env: dict[str, str] | None = None, cores: set[int] | None = None) -> tuple[float, float]:
+    """Wall and CPU seconds (user + system, of the command and the processes it started) of ``kmpipe ARGS``, on
+    ``cores`` alone if given (the CPU affinity of the command and all it starts)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
+    pinned = None if cores is None else (lambda: os.sched_setaffinity(0, cores))
     done = subprocess.run([sys.executable, "-m", "kmpipe", *args], capture_output=True, text=True,
-                          env={**os.environ, **(env or {})})  # fmt: skip
+                          env={**os.environ, **(env or {})}, preexec_fn=pinned)  # fmt: skip
     seconds = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode not in (0, 1):
@@ -110,10 +118,10 @@ def _scaling(folder: Path) -> tuple[list[list[str]], float]:
     recipe = sixteen_products(folder)
     start = _start()
     measured = []
-    for label, options, env in SCALING:
+    for label, options, env, cores in SCALING:
         out = folder / ("16-" + label.replace(" ", "_").replace(",", ""))
-        seconds, cpu = _kmpipe("run", str(recipe), "-o", str(out), *options, env=env)
-        cached, _ = _kmpipe("run", str(recipe), "-o", str(out), *options, env=env)
+        seconds, cpu = _kmpipe("run", str(recipe), "-o", str(out), *options, env=env, cores=cores)
+        cached, _ = _kmpipe("run", str(recipe), "-o", str(out), *options, env=env, cores=cores)
         measured.append((label, _frames(out), seconds, cpu, cached))
     one, pool = measured[0][2], measured[1][2]
     rows = []
@@ -121,14 +129,14 @@ def _scaling(folder: Path) -> tuple[list[list[str]], float]:
         compared = f"{seconds / pool:.2f} x the pool's time" if "dask" in label else ""
         rows.append([label, str(frames), f"{seconds:.1f}", f"{frames / seconds:.2f}", f"{one / seconds:.2f}",
                      f"{cpu:.1f}", f"{cpu / seconds:.2f}", f"{cached:.2f}", compared])  # fmt: skip
-    return rows, start
+    return rows, start, measured[-1][2] / pool
 
 
 def run() -> dict:
     with tempfile.TemporaryDirectory() as folder:
         demo = _demo(Path(folder))
-        scaling, start = _scaling(Path(folder))
-    return {"demo": demo, "scaling": scaling, "start": start}
+        scaling, start, per_core = _scaling(Path(folder))
+    return {"demo": demo, "scaling": scaling, "start": start, "per_core": per_core}
 
 
 def tables(rows: dict) -> list[Table]:
@@ -165,6 +173,8 @@ def tables(rows: dict) -> list[Table]:
                 "llvmpipe rasterizes on one thread per core: one process already renders on both cores of this "
                 "machine (compare the row on 1 thread); pool and Dask workers get the cores divided among them "
                 "(kmpipe.run.executors.worker_environment)",
+                "the workers against the cores they are given: 2 processes on 2 cores have "
+                f"{rows['per_core']:.2f} x the throughput of 1 process on 1 core (the last row)",
             ],
         ),
     ]

@@ -114,6 +114,8 @@ def _summary(
     ratio = float(one[2]) / float(pool[2])
     rows.append(["16-product line: throughput of 2 processes / 1 process", ">= 1.8", f"{ratio:.2f}",
                  "yes" if ratio >= 1.8 else "no"])  # fmt: skip
+    rows.append(["16-product line: throughput of 2 processes / 1 process on 1 core", "-",
+                 f"{run_rows['per_core']:.2f}", "-"])  # fmt: skip
     slower = float(dask[2]) / float(pool[2]) - 1.0
     rows.append(["16-product line: Dask local cluster (2 workers) against the local pool: time", "within 10 %",
                  f"{slower:+.1%}", "yes" if abs(slower) <= 0.1 else "no"])  # fmt: skip
