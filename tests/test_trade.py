@@ -126,6 +126,22 @@ def test_the_pareto_front_holds_exactly_the_settings_no_other_beats():
         assert all(o.seconds >= row.seconds for o in rows if o.knob == knob and o.mean_de <= 0.5)
 
 
+def test_front_settings_drawn_on_one_spot_share_a_number_and_others_do_not():
+    """trade.png numbers the front: settings within HUDDLE_PX of each other on the plot (here, linear axes of 100 px
+    per unit) get one number, each farther one its own."""
+    from matplotlib.figure import Figure
+
+    from kmpipe.stages.trade import Aggregate
+    from kmpipe.stages.trade_files import HUDDLE_PX, _huddles
+
+    figure = Figure(figsize=(4.0, 4.0), dpi=100)
+    axes = figure.add_axes((0.0, 0.0, 1.0, 1.0), xlim=(0.0, 4.0), ylim=(0.0, 4.0))
+    step = 0.9 * HUDDLE_PX / 100.0  # just inside
+    points = [(0.5, 3.0), (0.5 + step, 3.0), (0.5, 3.0 - step), (2.0, 1.0), (2.0 + 1.2 * HUDDLE_PX / 100.0, 1.0)]
+    front = [Aggregate("k", str(i), 2, y, x, x, False, 0.0, True) for i, (x, y) in enumerate(points)]
+    assert [[r.value for r in group] for group in _huddles(front, axes)] == [["0", "1", "2"], ["3"], ["4"]]
+
+
 def test_the_files_hold_the_measurements(traded):
     folder, _, result = traded
     trade = folder / "out" / "trade"

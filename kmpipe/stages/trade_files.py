@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import textwrap
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -62,14 +63,15 @@ def trade_json(line: str, target: float, settings: Sequence[Setting], rows: Sequ
 
 def trade_figure(line: str, target: float, rows: Sequence[Aggregate], choices: dict[str, FrameChoice]) -> bytes:
     """trade.png: each setting that applies to every product (time summed over them against mean Delta E 2000),
-    coloured by knob, the planner's ringed, the Pareto front joined and labelled, the target drawn; and, where every
+    coloured by knob, the planner's ringed, the Pareto front joined and numbered (named under the plot, those on one
+    spot under one number), the target drawn; and, where every
     product has frame settings chosen, the frames ``kmpipe run`` then plans (their times summed, their mean Delta E
     against the reference averaged) as a star."""
     everyone = max((r.products for r in rows), default=0)
     shown = [r for r in rows if r.products == everyone]
-    fig = Figure(figsize=(10.0, 6.0), layout="constrained")
+    fig = Figure(figsize=(10.0, 7.0), layout="constrained")
     FigureCanvasAgg(fig)
-    ax = fig.subplots()
+    ax, notes = fig.subplots(2, 1, height_ratios=(5.0, 1.0))
     for index, knob in enumerate(KNOBS):
         points = [r for r in shown if r.knob == knob]
         if points:
@@ -86,13 +88,21 @@ def trade_figure(line: str, target: float, rows: Sequence[Aggregate], choices: d
     front = sorted((r for r in shown if r.front), key=lambda r: r.mean_de)
     ax.plot([r.mean_de for r in front], [r.seconds for r in front], "-", color="0.3", linewidth=1, zorder=2,
             label="Pareto front")  # fmt: skip
-    for r in front:
-        ax.annotate(f"{r.knob}: {r.value}", (r.mean_de, r.seconds), fontsize=7, xytext=(4, 3),
-                    textcoords="offset points")  # fmt: skip
     ax.axvline(target, color="#c62828", linestyle="--", linewidth=1, label=f"target ΔE00 {target:g}")
     ax.set_xscale("symlog", linthresh=0.01)
     ax.set_xlim(left=0.0)
     ax.set_ylim(bottom=0.0)
+    # The front's settings numbered on the plot and named under it, those that land on one spot under one number.
+    fig.canvas.draw()
+    listing = ["The Pareto front (no other setting is both faster and closer to the reference):"]
+    for number, group in enumerate(_huddles(front, ax), start=1):
+        ax.annotate(str(number), (group[0].mean_de, group[0].seconds), fontsize=8, fontweight="bold", xytext=(5, 4),
+                    textcoords="offset points")  # fmt: skip
+        names = "; ".join(f"{r.knob}: {r.value}" for r in group)
+        listing += textwrap.wrap(f"{number}. {names} ({group[0].seconds:.3g} s, ΔE00 {group[0].mean_de:.3g})",
+                                 width=150, subsequent_indent="    ")  # fmt: skip
+    notes.axis("off")
+    notes.text(0.0, 1.0, "\n".join(listing), va="top", ha="left", fontsize=8, transform=notes.transAxes)
     ax.set_xlabel("mean ΔE00 against the most exact setting, over the products' pixels")
     ax.set_ylabel(f"seconds (a frame of each of the {everyone} products, summed)")
     ax.set_title(f"{line}: speed against accuracy, one knob at a time (the rest: trade.csv)")
@@ -101,6 +111,25 @@ def trade_figure(line: str, target: float, rows: Sequence[Aggregate], choices: d
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110, metadata={"Software": None})
     return buffer.getvalue()
+
+
+#: Front points closer than this on the plot (pixels) share a number.
+HUDDLE_PX = 12.0
+
+
+def _huddles(front: Sequence[Aggregate], ax) -> list[list[Aggregate]]:
+    """The front's points (in order of Delta E) in runs that lie within :data:`HUDDLE_PX` of the run's first point
+    as ``ax`` draws them."""
+    groups: list[list[Aggregate]] = []
+    for r in front:
+        x, y = ax.transData.transform((r.mean_de, r.seconds))
+        if groups:
+            x0, y0 = ax.transData.transform((groups[-1][0].mean_de, groups[-1][0].seconds))
+            if (x - x0) ** 2 + (y - y0) ** 2 <= HUDDLE_PX**2:
+                groups[-1].append(r)
+                continue
+        groups.append([r])
+    return groups
 
 
 def write_trade(out_dir: Path, line: str, target: float, settings: Sequence[Setting], rows: Sequence[Aggregate],
