@@ -6,7 +6,9 @@ head's cheek (the skin a uniform film of the tone's own spectrum, with the head'
 subsurface scattering, a soft key, the studio environment and a grey gradient behind, one sample a pixel), with a
 swatch of the exact made-up colour in its corner; and the bare skin's tile per illuminant. Tiles are rendered under
 the illuminant and adapted to D65 (CAT02) as a viewer adapted to that light sees them
-(:mod:`kmpipe.physics.optical_tables`), swatches the same way (:func:`kmpipe.physics.colorimetry.reflectance_to_sRGB`).
+(:mod:`kmpipe.physics.optical_tables`), swatches the same way (:func:`kmpipe.physics.colorimetry.reflectance_to_sRGB`);
+every tile is tone mapped by one curve, whose white is the white card of the tiles' common light
+(:mod:`renderer.scene_white`), so a white card would be display white in a tile as in a swatch.
 
 The row is written into its own folder: ``row.json`` (docs/formats.md, "Shade reviews") and the tiles
 ``bare_ILLUMINANT.png`` and ``SHADE_ILLUMINANT.png``.
