@@ -31,7 +31,7 @@ from renderer.occlusion import sphere_directions
 from renderer.scene import DirectionalLight, Scene
 from renderer.tone_map import LUMINANCE_WEIGHTS
 
-#: Normals the card is turned to (besides each light's own direction).
+#: Normals of the lattice the card is turned to (besides the peaks of the lights' subsets).
 NORMALS = 4096
 
 
@@ -39,7 +39,7 @@ def scene_white(scene: Scene) -> float:
     """The luminance W of a white card at the camera's target in the scene's light (module docstring), in the
     render's linear units; at least 1e-6 (a scene without light). For ``tone_map(..., "reinhard", white=W)``."""
     target = np.asarray(scene.camera.target, dtype=float)
-    towards, radiance = [], []
+    towards, radiance = [], []  # l_i and E_i g_i of each light that can light the card
     for light in scene.lights:
         if isinstance(light, DirectionalLight):
             towards.append(light.to_light())
@@ -51,15 +51,12 @@ def scene_white(scene: Scene) -> float:
                 continue
             towards.append(offset / distance)
             radiance.append(np.asarray(light.radiance, dtype=float) * (light.reference_distance_mm / distance) ** 2)
-    luminous = [float(np.asarray(LUMINANCE_WEIGHTS) @ light) * direction for direction, light in zip(towards,
-                radiance, strict=True)]  # fmt: skip
-    peaks = [np.sum(subset, axis=0) for size in range(1, len(luminous) + 1)
-             for subset in itertools.combinations(luminous, size)]  # fmt: skip
-    peaks = [peak / np.linalg.norm(peak) for peak in peaks if np.linalg.norm(peak) > 0.0]
+    towards, radiance = np.reshape(towards, (-1, 3)), np.reshape(radiance, (-1, 3))
+    luminous = towards * (radiance @ np.asarray(LUMINANCE_WEIGHTS))[:, None]  # Y(E_i g_i) l_i
+    subsets = itertools.chain.from_iterable(itertools.combinations(luminous, k) for k in range(1, len(luminous) + 1))
+    peaks = [peak / np.linalg.norm(peak) for peak in map(sum, subsets) if np.linalg.norm(peak) > 0.0]
     normals = np.concatenate([sphere_directions(NORMALS), np.reshape(peaks, (-1, 3))])
-    card = np.zeros((len(normals), 3))
-    for direction, light in zip(towards, radiance, strict=True):
-        card += np.maximum(normals @ direction, 0.0)[:, None] * light
+    card = np.maximum(normals @ towards.T, 0.0) @ radiance
     environment = scene.environment
     if environment is not None and environment.intensity > 0.0:
         irradiance = Environment(prefiltered(environment).irradiance, environment.rotation_deg, environment.intensity)

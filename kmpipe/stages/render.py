@@ -352,8 +352,8 @@ def render_scene(
     scenes = renderer_scenes(scene, plan, [angles[i] for i in chosen], scattering=scattering)
     # Reinhard's white: the scene's white card (renderer.scene_white), the same for every frame under these lights.
     white = scene_white(scenes[0]) if info.output.tone_map == "reinhard" and scenes else None
-    header["tone_map"] = f"{info.output.tone_map} {info.output.exposure_ev:+g} EV" + (
-        "" if white is None else f", white {white:.4g}") + " (PNG only)"  # fmt: skip
+    curve = f"{info.output.tone_map} {info.output.exposure_ev:+g} EV"
+    header["tone_map"] = f"{curve} (PNG only)" if white is None else f"{curve}, white {white:.4g} (PNG only)"
     # A frame is written (tone mapped, encoded, fsynced) by a thread of its own while the next one renders; at most
     # one write waits, and its error surfaces here before the next frame is handed over. on_frame follows the writes.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kmpipe-frame-writer") as writer:

@@ -64,9 +64,8 @@ def trade_json(line: str, target: float, settings: Sequence[Setting], rows: Sequ
 def trade_figure(line: str, target: float, rows: Sequence[Aggregate], choices: dict[str, FrameChoice]) -> bytes:
     """trade.png: each setting that applies to every product (time summed over them against mean Delta E 2000),
     coloured by knob, the planner's ringed, the Pareto front joined and numbered (named under the plot, those on one
-    spot under one number), the target drawn; and, where every
-    product has frame settings chosen, the frames ``kmpipe run`` then plans (their times summed, their mean Delta E
-    against the reference averaged) as a star."""
+    spot under one number), the target drawn; and, where every product has frame settings chosen, the frames
+    ``kmpipe run`` then plans (their times summed, their mean Delta E against the reference averaged) as a star."""
     everyone = max((r.products for r in rows), default=0)
     shown = [r for r in rows if r.products == everyone]
     fig = Figure(figsize=(10.0, 7.0), layout="constrained")
